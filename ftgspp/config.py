@@ -1,0 +1,131 @@
+"""Configuration schema: plain dataclasses.
+
+These are the single source of truth for every option. Hydra (in ``harness/`` and the
+``ftgspp train`` wrapper) composes YAML files in ``conf/`` onto them, so a typo or a wrong
+type fails at composition time; library code and tests build them directly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class DataConfig:
+    """Which scene to load and how."""
+
+    path: str = ""  # scene folder; format detected from its contents
+    format: str = "auto"  # auto | dynerf | easyvolcap
+    downsample: float = 1.0  # 2 = half resolution
+    frame_start: int = 0
+    frame_end: int | None = None  # exclusive; None = all frames
+    test_cameras: list[str] = field(default_factory=lambda: ["cam00"])
+    drop_cameras: list[str] = field(default_factory=list)  # e.g. ["cam13"] for coffee_martini
+    cache_dir: str | None = None  # decoded-frame cache; default <scene>/.ftgspp_cache
+
+
+@dataclass
+class ModelConfig:
+    """Per-Gaussian representation (DESIGN.md section 4)."""
+
+    name: str = "ftgs"
+    sh_degree: int = 3
+    max_duration: float | None = None  # None: s = exp(d); finite: s = max_duration/6 * sigmoid(d)
+    gate: bool = False
+    gate_gamma: float = 20.0
+    gate_init: float = -1.0
+    color_correction: bool = False
+    cc_start_iter: int = 3_000
+    cc_reg: float = 1e-3
+
+
+@dataclass
+class InitConfig:
+    """Point initialization from multi-view matches."""
+
+    keyframe_stride: int = 10
+    neighbor_cams: int = 2  # each view is matched to its k nearest cameras
+    max_features: int = 4_000  # SIFT features per image
+    ratio_test: float = 0.75
+    max_reproj_px: float = 2.0
+    velocity: str = "knn"  # knn | flow
+    knn_k: int = 3
+    opacity: float = 0.5
+    duration: float = 0.1  # seconds
+    scale_factor: float = 0.1  # initial scale = factor * kNN spacing
+    depth_prior: str = "auto"  # auto (scene bounds or camera baseline) | indoor | outdoor | explicit
+    near: float | None = None
+    far: float | None = None
+    fixed_seed: int | None = None  # compute init once with this seed for all optimisation seeds
+    random_points: int = 0  # extra random points in the depth range (0 = none)
+
+
+@dataclass
+class StrategyConfig:
+    """MCMC-style relocation of dead Gaussians (count stays fixed)."""
+
+    relocation: str = "mcmc"  # mcmc | exact_copy | partial_copy
+    refine_every: int = 100
+    refine_start_iter: int = 500
+    refine_stop_iter: int = 25_000
+    min_opacity: float = 5e-3
+
+
+@dataclass
+class LearningRates:
+    """Adam learning rates; means and velocity are multiplied by the scene extent."""
+
+    means: float = 1.6e-4
+    quats: float = 1e-3
+    scales: float = 5e-3
+    opacities: float = 5e-2
+    sh0: float = 2.5e-3
+    shN: float = 1.25e-4
+    durations: float = 5e-3
+    times: float = 1.6e-4
+    velocities: float = 1.6e-3
+    gates: float = 1e-3
+    cc: float = 1e-3
+    means_final_ratio: float = 0.01  # exponential decay of means and velocity over training
+    scale: float = 1.0  # global multiplier (stability studies)
+
+
+@dataclass
+class TrackingConfig:
+    """Where runs are recorded (used by the harness; the library only sees a Tracker)."""
+
+    uri: str = "sqlite:///mlflow.db"  # MLFLOW_TRACKING_URI overrides it
+    experiment: str = "ftgspp"
+
+
+@dataclass
+class TrainConfig:
+    """Everything one training run needs."""
+
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    init: InitConfig = field(default_factory=InitConfig)
+    strategy: StrategyConfig = field(default_factory=StrategyConfig)
+    lr: LearningRates = field(default_factory=LearningRates)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    profile: str = "quick"
+    seed: int = 0
+    iterations: int = 30_000
+    budget: int = 500_000  # number of Gaussians (fixed by relocation)
+    backend: str = "auto"  # auto | reference | cpu | gsplat
+    device: str = "auto"  # auto | cpu | cuda
+    threads: int = 0  # torch threads; 0 = leave as is
+    ssim_weight: float = 0.2
+    lpips_weight: float = 0.0  # 0.01 on GPU profiles
+    opacity_reg: float = 0.01  # FreeTimeGS 4D regulariser
+    scale_reg: float = 0.01
+    gate_reg: float = 1e-3
+    sh_degree_interval: int = 1_000
+    background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    random_background: bool = False
+    log_every: int = 50
+    checkpoint_every: int = 1_000
+    eval_every: int = 0  # 0 = only at the end
+    out_dir: str = "."
+    resume: bool = True
+    progress: bool = True

@@ -1,0 +1,135 @@
+"""``FreeTimeGaussians``: 4D Gaussians that live for a while and move freely.
+
+Each Gaussian has a spatial mean μx, a temporal centre μt, a duration parameter d, a
+velocity v, log-scales S, a quaternion R, an opacity logit o, SH colour coefficients and
+a gate logit g̃ (DESIGN.md section 4). At time t it is an ordinary 3D Gaussian with
+
+    μx(t) = μx + v (t − μt),     α(t) = sigmoid(o) · φ(t),
+    φ(t)  = g + (1 − g) a(t)  (gate on)   or   a(t)  (gate off),
+    a(t)  = exp(−½ ((t − μt) / s)²),   g = sigmoid(γ g̃),
+    s     = max_duration / 6 · sigmoid(d)  (finite max_duration)  or  exp(d).
+
+Every per-Gaussian tensor has leading dimension N and lives in ``params``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from ftgspp.config import InitConfig, ModelConfig
+
+SH_C0 = 0.28209479177387814
+
+
+@dataclass
+class GaussiansAt:
+    """The 3D Gaussians of a model evaluated at one time."""
+
+    means: torch.Tensor  # [N, 3]
+    quats: torch.Tensor  # [N, 4]
+    scales: torch.Tensor  # [N, 3] activated
+    opacities: torch.Tensor  # [N] sigmoid(o) * phi(t)
+    sh: torch.Tensor  # [N, K, 3]
+    temporal: torch.Tensor  # [N] phi(t)
+
+
+class FreeTimeGaussians(nn.Module):
+    """Per-Gaussian parameters and their activations."""
+
+    def __init__(self, params: dict[str, torch.Tensor], cfg: ModelConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.params = nn.ParameterDict({k: nn.Parameter(v.contiguous()) for k, v in params.items()})
+
+    # --- construction -------------------------------------------------------------------
+    @classmethod
+    def from_points(
+        cls,
+        means: np.ndarray,  # [N, 3]
+        colors: np.ndarray,  # [N, 3] RGB in [0, 1]
+        times: np.ndarray,  # [N] seconds
+        velocities: np.ndarray,  # [N, 3]
+        spacing: np.ndarray,  # [N] kNN spacing
+        cfg: ModelConfig,
+        init: InitConfig,
+    ) -> "FreeTimeGaussians":
+        """Build a model from initial points (DESIGN.md section 4, "Init")."""
+        n = len(means)
+        f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+        n_sh = (cfg.sh_degree + 1) ** 2
+        spacing_t = f32(spacing).clamp_min(1e-7)
+        params = {
+            "means": f32(means),
+            "times": f32(times),
+            "durations": torch.full((n,), duration_to_param(init.duration, cfg.max_duration)),
+            "velocities": f32(velocities),
+            "scales": torch.log(init.scale_factor * spacing_t)[:, None].repeat(1, 3),
+            "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n, 1),
+            "opacities": torch.full((n,), math.log(init.opacity / (1 - init.opacity))),
+            "sh0": ((f32(colors) - 0.5) / SH_C0)[:, None, :],
+            "shN": torch.zeros(n, n_sh - 1, 3),
+            "gates": torch.full((n,), float(cfg.gate_init)),
+        }
+        return cls(params, cfg)
+
+    def __len__(self) -> int:
+        return self.params["means"].shape[0]
+
+    # --- activations --------------------------------------------------------------------
+    def temporal_scale(self) -> torch.Tensor:
+        """Temporal standard deviation s in seconds, ``[N]``."""
+        d = self.params["durations"]
+        if self.cfg.max_duration is None:
+            return torch.exp(d)
+        return self.cfg.max_duration / 6.0 * torch.sigmoid(d)
+
+    def gate(self) -> torch.Tensor:
+        """Gate value g in (0, 1), ``[N]`` (zeros when the gate is switched off)."""
+        if not self.cfg.gate:
+            return torch.zeros_like(self.params["gates"])
+        return torch.sigmoid(self.cfg.gate_gamma * self.params["gates"])
+
+    def temporal_opacity(self, t: float) -> torch.Tensor:
+        """φ(t), the temporal factor of the opacity, ``[N]``."""
+        a = torch.exp(-0.5 * ((t - self.params["times"]) / self.temporal_scale()) ** 2)
+        if not self.cfg.gate:
+            return a
+        g = self.gate()
+        return g + (1.0 - g) * a
+
+    def base_opacity(self) -> torch.Tensor:
+        """sigmoid(o), ``[N]``."""
+        return torch.sigmoid(self.params["opacities"])
+
+    def at_time(self, t: float) -> GaussiansAt:
+        """The 3D Gaussians at time ``t`` (seconds)."""
+        p = self.params
+        phi = self.temporal_opacity(t)
+        means = p["means"] + p["velocities"] * (t - p["times"])[:, None]
+        return GaussiansAt(
+            means=means,
+            quats=p["quats"],
+            scales=torch.exp(p["scales"]),
+            opacities=self.base_opacity() * phi,
+            sh=torch.cat([p["sh0"], p["shN"]], dim=1),
+            temporal=phi,
+        )
+
+    def lifetimes(self, threshold: float) -> torch.Tensor:
+        """Effective lifetime Δt(θ) = 2 s √(2 log(o/θ)) for o > θ, else 0, in seconds, ``[N]``."""
+        o = self.base_opacity()
+        ratio = torch.clamp(o / threshold, min=1.0)
+        return 2.0 * self.temporal_scale() * torch.sqrt(2.0 * torch.log(ratio))
+
+
+def duration_to_param(duration: float, max_duration: float | None) -> float:
+    """Inverse of the temporal-scale activation: the d that gives s = ``duration``."""
+    if max_duration is None:
+        return math.log(duration)
+    frac = min(max(duration * 6.0 / max_duration, 1e-4), 1 - 1e-4)
+    return math.log(frac / (1.0 - frac))

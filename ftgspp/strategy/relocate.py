@@ -1,0 +1,83 @@
+"""The relocation step of the trainer: schedule, statistics and the three policies.
+
+- ``mcmc``: sources and their copies share the source's opacity and scale by the
+  3DGS-MCMC rule, so the rendered image changes as little as possible.
+- ``exact_copy``: dead Gaussians become exact copies of their sources.
+- ``partial_copy``: copy everything but opacity and scale, which the dead Gaussian keeps.
+
+Moments of moved Gaussians (sources and destinations) are zeroed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from ftgspp.config import StrategyConfig
+from ftgspp.strategy.ops import copy_gaussians, reset_moments
+from ftgspp.strategy.policies import POLICIES, choose_relocation, mcmc_opacity_scale
+
+
+@dataclass
+class Relocator:
+    """Hyperparameters of relocation; running statistics live in the ``state`` dict."""
+
+    cfg: StrategyConfig
+
+    def __post_init__(self) -> None:
+        if self.cfg.relocation not in POLICIES:
+            from ftgspp.errors import InputError
+
+            raise InputError("strategy.relocation", f"unknown policy '{self.cfg.relocation}' (choose from {', '.join(POLICIES)})")
+
+    def initialize_state(self, n: int) -> dict[str, torch.Tensor]:
+        """Per-Gaussian accumulators of the 2D mean-gradient norm."""
+        return {"grad2d": torch.zeros(n), "count": torch.zeros(n)}
+
+    @torch.no_grad()
+    def accumulate(self, state: dict[str, torch.Tensor], means2d_grad: torch.Tensor, radii: torch.Tensor) -> None:
+        """Add ‖∇ means2d‖ of the visible Gaussians after a backward pass."""
+        visible = radii > 0
+        state["grad2d"][visible] += means2d_grad[visible].norm(dim=-1).to(state["grad2d"].device)
+        state["count"][visible] += 1
+
+    def due(self, step: int) -> bool:
+        """Relocate after ``step`` (1-based)?"""
+        c = self.cfg
+        return c.refine_start_iter < step < c.refine_stop_iter and step % c.refine_every == 0
+
+    @torch.no_grad()
+    def step(
+        self,
+        params: nn.ParameterDict,
+        optimizers: dict[str, torch.optim.Optimizer],
+        state: dict[str, torch.Tensor],
+        generator: torch.Generator,
+    ) -> int:
+        """Relocate dead Gaussians; returns how many moved. Resets the statistics."""
+        opacity = torch.sigmoid(params["opacities"].detach()).cpu()
+        grad2d = (state["grad2d"] / state["count"].clamp_min(1)).cpu()
+        dead, sources = choose_relocation(opacity, grad2d, self.cfg.min_opacity, generator)
+        state["grad2d"].zero_()
+        state["count"].zero_()
+        if len(dead) == 0:
+            return 0
+        device = params["means"].device
+        dead, sources = dead.to(device), sources.to(device)
+        policy = self.cfg.relocation
+        if policy == "mcmc":
+            n = torch.bincount(sources, minlength=len(opacity))[sources] + 1
+            o_new, s_new = mcmc_opacity_scale(
+                opacity.to(device)[sources], torch.exp(params["scales"].detach()[sources]), n, self.cfg.min_opacity
+            )
+            params["opacities"].data[sources] = torch.logit(o_new)
+            params["scales"].data[sources] = torch.log(s_new)
+            copy_gaussians(params, dead, sources)
+        elif policy == "exact_copy":
+            copy_gaussians(params, dead, sources)
+        else:  # partial_copy
+            copy_gaussians(params, dead, sources, keep=("opacities", "scales"))
+        reset_moments(optimizers, params, torch.cat([dead, sources]))
+        return len(dead)
