@@ -22,6 +22,7 @@ class DataConfig:
     test_cameras: list[str] = field(default_factory=lambda: ["cam00"])
     drop_cameras: list[str] = field(default_factory=list)  # e.g. ["cam13"] for coffee_martini
     cache_dir: str | None = None  # decoded-frame cache; default <scene>/.ftgspp_cache
+    fps: float | None = None  # EasyVolcap scenes: frames per second (default: scene.json or 30)
 
 
 @dataclass
@@ -129,3 +130,24 @@ class TrainConfig:
     out_dir: str = "."
     resume: bool = True
     progress: bool = True
+
+
+def _fill(cls, data: dict):
+    """Build dataclass ``cls`` from a (possibly nested) dict, ignoring unknown keys."""
+    import dataclasses
+
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in data:
+            continue
+        v = data[f.name]
+        sub = f.default_factory if f.default_factory is not dataclasses.MISSING else None  # type: ignore[misc]
+        if sub is not None and dataclasses.is_dataclass(sub) and isinstance(v, dict):
+            v = _fill(sub, v)
+        kwargs[f.name] = v
+    return cls(**kwargs)
+
+
+def train_config_from_dict(data: dict) -> TrainConfig:
+    """Rebuild a ``TrainConfig`` from ``dataclasses.asdict`` output (e.g. a run's config.json)."""
+    return _fill(TrainConfig, data)

@@ -122,6 +122,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     tracker = tracker or NullTracker()
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "config.json").write_text(json.dumps(asdict(cfg), indent=2))
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     device = pick_device(cfg.device)

@@ -6,7 +6,11 @@ is a plain function of the ``ftgspp`` library. Input errors print one line and e
 
 from __future__ import annotations
 
+import os
 import sys
+
+# Before cv2 loads: no ffmpeg chatter on stderr for a corrupt video (our one error line is enough).
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 from ftgspp.errors import InputError, exit_on_input_error
 

@@ -1,0 +1,386 @@
+"""Initial 4D Gaussians from multi-view video: triangulated keyframe points.
+
+For every keyframe (every ``cfg.keyframe_stride``-th loaded frame) and every training camera
+(the held-out test cameras are never read):
+
+1. SIFT features (``cv2.SIFT_create(nfeatures=cfg.max_features)``).
+2. Each view is matched to its ``cfg.neighbor_cams`` nearest training cameras by centre
+   distance (each unordered pair once), brute-force L2 with Lowe's ratio test.
+3. Matches are filtered with the known geometry: Sampson distance to the epipolar line of
+   the fundamental matrix built from the two calibrated cameras, < ``cfg.max_reproj_px``.
+4. ``cv2.triangulatePoints`` with ``Camera.projection``; a point is kept if it is in front
+   of both cameras with depth in ``[near, far]`` (``depth_range``) and reprojects within
+   ``cfg.max_reproj_px`` in both views. Colour = mean of the two pixel colours.
+
+A feature (camera, keypoint position) yields at most one point per keyframe: once used by a
+pair, later pairs skip it, so a feature seen by three cameras is not triangulated three times
+(near-duplicates would make the kNN spacing, and so the initial scales, collapse to zero).
+
+``initialize`` then adds kNN velocities (``ftgspp.init.velocity``), temporal centres
+(keyframe time + uniform jitter in +-stride/fps/2, not clipped to the loaded time span), kNN
+spacing (3 nearest neighbours in the same keyframe, floored at 1e-4 x the median so scales
+stay positive) and fits the count to the budget: more points than ``budget -
+cfg.random_points`` are subsampled without replacement; fewer are topped up by resampling
+points with replacement and jittering the copies' positions by N(0, (0.5 spacing)^2) per
+axis (colour, time, velocity and spacing kept). ``cfg.random_points`` extra points (part of
+the budget) are uniform in pixel and depth in [near, far] of random training cameras, with
+random colour, zero velocity, a time uniform over the keyframe span and their own kNN
+spacing. All randomness comes from ``np.random.default_rng(seed)``.
+
+Scene scale (for the ``indoor``/``outdoor`` depth priors and fallbacks): the median distance
+of the training camera centres to their centroid, or 1 when that is zero (a single camera).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ftgspp.config import InitConfig
+from ftgspp.data.scene import Camera, Scene
+from ftgspp.errors import InputError
+from ftgspp.init.velocity import check_velocity_mode, keyframe_velocities
+
+log = logging.getLogger("ftgspp.init")
+
+SPACING_K = 3  # neighbours for the kNN spacing
+AUTO_MARGIN = (0.5, 1.5)  # "auto" with scene bounds: (near * 0.5, far * 1.5)
+BASELINE_RANGE = (0.1, 1000.0)  # "auto" without bounds: multiples of the camera baseline
+PRIORS = {"indoor": (0.2, 20.0), "outdoor": (0.5, 500.0)}  # multiples of the scene scale
+
+
+@dataclass
+class InitPoints:
+    """Initial point set; every array has leading dimension N."""
+
+    means: np.ndarray  # [N, 3] float32 world positions
+    colors: np.ndarray  # [N, 3] float32 RGB in [0, 1]
+    times: np.ndarray  # [N] float32 temporal centres mu_t in seconds (already jittered)
+    velocities: np.ndarray  # [N, 3] float32 world units / second
+    spacing: np.ndarray  # [N] float32 mean distance to 3 nearest neighbours (same keyframe)
+    keyframe: np.ndarray  # [N] int64 index of the keyframe the point came from
+
+    def __len__(self) -> int:
+        return len(self.means)
+
+    def take(self, idx: np.ndarray) -> "InitPoints":
+        """The points at ``idx`` (any integer index array, repeats allowed)."""
+        return InitPoints(*(getattr(self, f)[idx] for f in _FIELDS))
+
+
+_FIELDS = ("means", "colors", "times", "velocities", "spacing", "keyframe")
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def scene_scale(scene: Scene) -> float:
+    """Median distance of the training camera centres to their centroid (1 if zero)."""
+    centers = np.stack([scene.cameras[i].center for i in scene.train_ids])  # [C, 3]
+    scale = float(np.median(np.linalg.norm(centers - centers.mean(axis=0), axis=1)))
+    return scale if scale > 0 else 1.0
+
+
+def camera_baseline(scene: Scene) -> float:
+    """Median distance of each training camera to its nearest training camera (1 if zero)."""
+    centers = np.stack([scene.cameras[i].center for i in scene.train_ids])  # [C, 3]
+    if len(centers) < 2:
+        return 1.0
+    d, _ = cKDTree(centers).query(centers, k=2)
+    baseline = float(np.median(d[:, 1]))
+    return baseline if baseline > 0 else 1.0
+
+
+def depth_range(scene: Scene, cfg: InitConfig) -> tuple[float, float]:
+    """(near, far) camera-space depth bounds for accepting triangulated points.
+
+    ``auto``: the scene's near/far widened to (0.5 near, 1.5 far) when the format provides
+    them, else (0.1, 1000) x camera baseline; ``indoor``: (0.2, 20) x scene scale;
+    ``outdoor``: (0.5, 500) x scene scale; ``explicit``: ``cfg.near``, ``cfg.far``.
+    """
+    prior = cfg.depth_prior
+    if prior == "auto":
+        if scene.near is not None and scene.far is not None:
+            near, far = scene.near * AUTO_MARGIN[0], scene.far * AUTO_MARGIN[1]
+        else:
+            b = camera_baseline(scene)
+            near, far = BASELINE_RANGE[0] * b, BASELINE_RANGE[1] * b
+    elif prior in PRIORS:
+        s = scene_scale(scene)
+        near, far = PRIORS[prior][0] * s, PRIORS[prior][1] * s
+    elif prior == "explicit":
+        if cfg.near is None or cfg.far is None:
+            raise InputError("init.near/init.far", "depth_prior=explicit needs both init.near and init.far")
+        near, far = float(cfg.near), float(cfg.far)
+    else:
+        expected = "auto, indoor, outdoor or explicit"
+        raise InputError("init.depth_prior", f"unknown value {prior!r}; expected {expected}")
+    if not (0 < near < far):
+        raise InputError("init.near/init.far", f"need 0 < near < far, got near={near:g}, far={far:g}")
+    return float(near), float(far)
+
+
+def fundamental_matrix(cam_a: Camera, cam_b: Camera) -> np.ndarray:
+    """F [3, 3] with ``x_b^T F x_a = 0`` for pixels of the same world point in a and b."""
+    R = cam_b.R @ cam_a.R.T  # a-camera to b-camera rotation
+    t = cam_b.T - R @ cam_a.T
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    E = tx @ R
+    return np.linalg.inv(cam_b.K).T @ E @ np.linalg.inv(cam_a.K)
+
+
+def sampson_distance(F: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
+    """First-order geometric epipolar error in pixels. pa, pb [M, 2] -> [M]."""
+    xa = np.hstack([pa, np.ones((len(pa), 1))])  # [M, 3]
+    xb = np.hstack([pb, np.ones((len(pb), 1))])
+    Fxa = xa @ F.T  # [M, 3] epipolar lines in b
+    Ftxb = xb @ F  # [M, 3] epipolar lines in a
+    num = np.sum(xb * Fxa, axis=1) ** 2
+    den = Fxa[:, 0] ** 2 + Fxa[:, 1] ** 2 + Ftxb[:, 0] ** 2 + Ftxb[:, 1] ** 2
+    return np.sqrt(num / np.maximum(den, 1e-300))
+
+
+def project(cam: Camera, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted pixels [M, 2] and camera-space depths [M] of world points X [M, 3]."""
+    Xc = X @ cam.R.T + cam.T  # [M, 3]
+    z = Xc[:, 2]
+    uv = Xc @ cam.K.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return uv[:, :2] / uv[:, 2:3], z
+
+
+# --------------------------------------------------------------------------- matching
+
+
+def neighbor_pairs(scene: Scene, k: int) -> list[tuple[int, int]]:
+    """Unordered pairs (camera indices into ``scene.cameras``, i < j): each training camera
+    with its ``k`` nearest training cameras by centre distance, each pair once."""
+    ids = list(scene.train_ids)
+    if len(ids) < 2:
+        return []
+    centers = np.stack([scene.cameras[i].center for i in ids])
+    k = max(1, min(int(k), len(ids) - 1))
+    _, nn = cKDTree(centers).query(centers, k=k + 1)  # [C, k+1], column 0 is (usually) itself
+    pairs = set()
+    for a, row in enumerate(nn):
+        for b in row:
+            if b != a:
+                pairs.add((min(ids[a], ids[b]), max(ids[a], ids[b])))
+    return sorted(pairs)
+
+
+@dataclass
+class _View:
+    pix: np.ndarray  # [n, 2] keypoints in the image (distorted) pixel coordinates
+    loc: np.ndarray  # [n] location id: SIFT repeats a keypoint per orientation at one position
+    und: np.ndarray  # [n, 2] the same keypoints undistorted (pinhole model)
+    desc: np.ndarray | None  # [n, 128] float32 SIFT descriptors
+    image: np.ndarray  # [H, W, 3] uint8 RGB
+
+
+def _detect(sift: cv2.SIFT, cam: Camera, image: np.ndarray) -> _View:
+    image = np.ascontiguousarray(image)
+    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    kps, desc = sift.detectAndCompute(gray, None)
+    pix = np.array([kp.pt for kp in kps], dtype=np.float64).reshape(-1, 2)
+    und = pix
+    if cam.dist is not None and len(pix) and np.any(np.asarray(cam.dist) != 0):
+        und = cv2.undistortPoints(pix.reshape(-1, 1, 2), cam.K, np.asarray(cam.dist), P=cam.K).reshape(-1, 2)
+    _, loc = np.unique(pix, axis=0, return_inverse=True)
+    return _View(pix, loc.reshape(-1), und, desc, image)
+
+
+def _ratio_matches(desc_a: np.ndarray | None, desc_b: np.ndarray | None, ratio: float) -> np.ndarray:
+    """[M, 2] keypoint index pairs passing Lowe's ratio test, one-to-one."""
+    if desc_a is None or desc_b is None or len(desc_a) < 2 or len(desc_b) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(desc_a, desc_b, k=2)
+    m = np.array(
+        [(p[0].queryIdx, p[0].trainIdx) for p in knn if len(p) == 2 and p[0].distance < ratio * p[1].distance],
+        dtype=np.int64,
+    ).reshape(-1, 2)
+    # drop b-keypoints claimed by several a-keypoints (ambiguous)
+    _, inv, counts = np.unique(m[:, 1], return_inverse=True, return_counts=True)
+    return m[counts[inv] == 1]
+
+
+def _first_occurrence(ids: np.ndarray) -> np.ndarray:
+    """Boolean mask [M] that is True at the first occurrence of each value of ids [M]."""
+    mask = np.zeros(len(ids), dtype=bool)
+    mask[np.unique(ids, return_index=True)[1]] = True
+    return mask
+
+
+def _colors(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
+    """RGB in [0, 1] at the nearest pixel. pix [M, 2] -> [M, 3] float64."""
+    h, w = image.shape[:2]
+    x = np.clip(np.rint(pix[:, 0]).astype(np.int64), 0, w - 1)
+    y = np.clip(np.rint(pix[:, 1]).astype(np.int64), 0, h - 1)
+    return image[y, x].astype(np.float64) / 255.0
+
+
+def triangulate_keyframe(
+    scene: Scene, frame: int, cfg: InitConfig, near: float, far: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulated points [M, 3] and colours [M, 3] (float32) of loaded frame ``frame``.
+
+    Uses training cameras only. See the module docstring for the pipeline and checks.
+    """
+    sift = cv2.SIFT_create(nfeatures=cfg.max_features)
+    pairs = neighbor_pairs(scene, cfg.neighbor_cams)
+    cams = sorted({c for p in pairs for c in p})  # training cameras only
+    views = {c: _detect(sift, scene.cameras[c], scene.frames(c)[frame]) for c in cams}
+    used = {c: np.zeros(len(v.pix), dtype=bool) for c, v in views.items()}  # by location id
+    points, colors = [], []
+    n_matches = n_epipolar = 0
+    for a, b in pairs:
+        va, vb, cam_a, cam_b = views[a], views[b], scene.cameras[a], scene.cameras[b]
+        m = _ratio_matches(va.desc, vb.desc, cfg.ratio_test)
+        m = m[~used[a][va.loc[m[:, 0]]] & ~used[b][vb.loc[m[:, 1]]]]
+        n_matches += len(m)
+        pa, pb = va.und[m[:, 0]], vb.und[m[:, 1]]
+        ok = sampson_distance(fundamental_matrix(cam_a, cam_b), pa, pb) < cfg.max_reproj_px
+        m, pa, pb = m[ok], pa[ok], pb[ok]
+        n_epipolar += len(m)
+        if len(m) == 0:
+            continue
+        Xh = cv2.triangulatePoints(cam_a.projection, cam_b.projection, pa.T.copy(), pb.T.copy())  # [4, M]
+        w = Xh[3]
+        finite = np.abs(w) > 1e-12
+        X = (Xh[:3] / np.where(finite, w, 1.0)).T  # [M, 3]
+        keep = finite
+        for cam, p in ((cam_a, pa), (cam_b, pb)):
+            uv, z = project(cam, X)
+            err = np.linalg.norm(uv - p, axis=1)
+            keep &= (z > 0) & (z >= near) & (z <= far) & (err < cfg.max_reproj_px)
+        m, X = m[keep], X[keep]
+        unique = _first_occurrence(va.loc[m[:, 0]]) & _first_occurrence(vb.loc[m[:, 1]])
+        m, X = m[unique], X[unique]
+        used[a][va.loc[m[:, 0]]] = True
+        used[b][vb.loc[m[:, 1]]] = True
+        points.append(X)
+        colors.append(0.5 * (_colors(va.image, va.pix[m[:, 0]]) + _colors(vb.image, vb.pix[m[:, 1]])))
+    P = np.concatenate(points).astype(np.float32) if points else np.zeros((0, 3), np.float32)
+    C = np.concatenate(colors).astype(np.float32) if colors else np.zeros((0, 3), np.float32)
+    log.info(
+        "init: frame %d: %d views, %d pairs, %d matches, %d epipolar inliers, %d points",
+        frame, len(views), len(pairs), n_matches, n_epipolar, len(P),
+    )
+    return P, C
+
+
+# --------------------------------------------------------------------------- assembly
+
+
+def knn_spacing(points: np.ndarray, k: int = SPACING_K) -> np.ndarray:
+    """Mean distance to the ``k`` nearest other points. [M, 3] -> [M] (NaN if M < 2)."""
+    m = len(points)
+    if m < 2:
+        return np.full(m, np.nan)
+    k = min(k, m - 1)
+    d, _ = cKDTree(points).query(points, k=k + 1)
+    return d[:, 1:].mean(axis=1)
+
+
+def keyframes(scene: Scene, cfg: InitConfig) -> list[int]:
+    """Keyframe indices into the loaded frame range: 0, stride, 2 stride, ..."""
+    if cfg.keyframe_stride < 1:
+        raise InputError("init.keyframe_stride", f"must be >= 1, got {cfg.keyframe_stride}")
+    return list(range(0, scene.n_frames, cfg.keyframe_stride))
+
+
+def _random_points(scene: Scene, n: int, near: float, far: float, rng: np.random.Generator) -> np.ndarray:
+    """n world points uniform in (pixel, depth) inside random training cameras' frusta. [n, 3]"""
+    out = np.zeros((n, 3))
+    cams = rng.integers(0, len(scene.train_ids), size=n)
+    for ci in np.unique(cams):
+        sel = cams == ci
+        cam, m = scene.cameras[scene.train_ids[ci]], int(sel.sum())
+        uv1 = np.stack(
+            [rng.uniform(-0.5, cam.width - 0.5, m), rng.uniform(-0.5, cam.height - 0.5, m), np.ones(m)], axis=1
+        )  # [m, 3]
+        xc = (uv1 @ np.linalg.inv(cam.K).T) * rng.uniform(near, far, m)[:, None]  # camera space, z in [near, far]
+        out[sel] = (xc - cam.T) @ cam.R  # R^T (xc - T)
+    return out
+
+
+def _fit_budget(pts: InitPoints, budget: int, rng: np.random.Generator) -> InitPoints:
+    """Exactly ``budget`` points: subsample without replacement, or resample with replacement
+    and jitter the copies' positions by N(0, (0.5 spacing)^2) per axis."""
+    n = len(pts)
+    if n >= budget:
+        return pts.take(np.sort(rng.choice(n, size=budget, replace=False)))
+    extra = pts.take(rng.integers(0, n, size=budget - n))
+    jitter = rng.normal(size=extra.means.shape) * (0.5 * extra.spacing[:, None])  # [budget - n, 3]
+    extra.means = (extra.means + jitter).astype(np.float32)
+    return InitPoints(*(np.concatenate([getattr(pts, f), getattr(extra, f)]) for f in _FIELDS))
+
+
+def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoints:
+    """Exactly ``budget`` initial points (means, colours, times, velocities, spacing, keyframe).
+
+    Raises ``InputError`` on bad options or when no point could be triangulated.
+    """
+    if budget < 1:
+        raise InputError("budget", f"must be >= 1, got {budget}")
+    n_random = int(cfg.random_points)
+    if n_random < 0 or n_random >= budget:
+        raise InputError("init.random_points", f"must be in [0, budget), got {n_random} with budget {budget}")
+    rng = np.random.default_rng(seed)
+    near, far = depth_range(scene, cfg)
+    check_velocity_mode(cfg)  # fail before the expensive matching
+    kfs = keyframes(scene, cfg)
+    kf_times = [float(scene.times[f]) for f in kfs]
+    tri = [triangulate_keyframe(scene, f, cfg, near, far) for f in kfs]
+    points = [p for p, _ in tri]
+    if sum(len(p) for p in points) == 0:
+        raise InputError(
+            scene.root,
+            f"no points could be triangulated from {len(scene.train_ids)} training cameras at "
+            f"{len(kfs)} keyframes (depth range {near:g}..{far:g}); check the calibration, "
+            "init.depth_prior or init.near/init.far",
+        )
+    velocities = keyframe_velocities(points, kf_times, cfg)
+    spacing = [knn_spacing(p.astype(np.float64)) for p in points]
+    all_spacing = np.concatenate(spacing)
+    finite = all_spacing[np.isfinite(all_spacing)]
+    fallback = float(np.median(finite)) if len(finite) else 0.01 * scene_scale(scene)
+    floor = max(1e-4 * fallback, 1e-12)  # coincident points: keep scales strictly positive
+    all_spacing = np.maximum(np.where(np.isfinite(all_spacing), all_spacing, fallback), floor)
+
+    half = cfg.keyframe_stride / scene.fps / 2.0
+    keyframe = np.concatenate([np.full(len(p), i, dtype=np.int64) for i, p in enumerate(points)])
+    times = np.asarray(kf_times)[keyframe] + rng.uniform(-half, half, size=len(keyframe))
+    pts = InitPoints(
+        means=np.concatenate(points).astype(np.float32),
+        colors=np.concatenate([c for _, c in tri]).astype(np.float32),
+        times=times.astype(np.float32),
+        velocities=np.concatenate(velocities).astype(np.float32),
+        spacing=all_spacing.astype(np.float32),
+        keyframe=keyframe,
+    )
+    pts = _fit_budget(pts, budget - n_random, rng)
+    if n_random:
+        t0, t1 = kf_times[0] - half, kf_times[-1] + half
+        rt = rng.uniform(t0, t1, size=n_random)
+        rk = np.abs(rt[:, None] - np.asarray(kf_times)[None]).argmin(axis=1)
+        rand_means = _random_points(scene, n_random, near, far, rng)
+        rand_spacing = knn_spacing(rand_means)
+        rand = InitPoints(
+            means=rand_means.astype(np.float32),
+            colors=rng.uniform(0, 1, size=(n_random, 3)).astype(np.float32),
+            times=rt.astype(np.float32),
+            velocities=np.zeros((n_random, 3), np.float32),
+            spacing=np.where(np.isfinite(rand_spacing), rand_spacing, fallback).astype(np.float32),
+            keyframe=rk.astype(np.int64),
+        )
+        pts = InitPoints(*(np.concatenate([getattr(pts, f), getattr(rand, f)]) for f in _FIELDS))
+    log.info(
+        "init: %d keyframes, %d triangulated points, %d random, %d after budget (seed %d)",
+        len(kfs), len(all_spacing), n_random, len(pts), seed,
+    )
+    return pts

@@ -1,0 +1,399 @@
+"""Scene loaders (DyNeRF, EasyVolcap): conventions, frame ranges, caching, bad input.
+
+Scenes are tiny (32x24, 4 cameras, 6 frames) and written by ``fixtures.py``; each frame
+shows a blob where the fixture's own camera model projects a moving 3D point, so marker
+checks test the loaders' conventions independently of their code.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from ftgspp.config import DataConfig
+from ftgspp.data.dynerf import cameras_from_poses_bounds, poses_bounds_from_cameras
+from ftgspp.data.load import detect_format, load_scene, match_camera
+from ftgspp.errors import InputError
+
+try:  # tests/ importable as a package
+    from tests.data import fixtures as fx
+except ImportError:  # pytest's default "prepend" import mode puts this folder on sys.path
+    import fixtures as fx  # type: ignore[no-redef]
+
+MARKER_TOL_PX = 0.3  # blob centroid vs projection; a half-pixel convention slip is 0.5
+
+
+def _write(layout: str, root: Path, **kwargs) -> Path:
+    return fx.write_dynerf(root, **kwargs) if layout == "dynerf" else fx.write_easyvolcap(root, **kwargs)
+
+
+def _load(root: Path, **kwargs) -> object:
+    return load_scene(DataConfig(path=str(root), **kwargs))
+
+
+def _projection(cam, X: np.ndarray) -> np.ndarray:
+    x = cam.K @ (cam.R @ X + cam.T)
+    return x[:2] / x[2]
+
+
+def _assert_markers(scene) -> None:
+    """Every loaded frame shows the marker where the loaded camera projects it at that time."""
+    for c, cam in enumerate(scene.cameras):
+        frames = scene.frames(c)
+        assert frames.shape == (scene.n_frames, cam.height, cam.width, 3) and frames.dtype == np.uint8
+        for k, t in enumerate(scene.times):
+            found = fx.marker_centroid(frames[k])
+            expected = _projection(cam, fx.marker_position(t))
+            assert np.abs(found - expected).max() < MARKER_TOL_PX, (cam.name, k, found, expected)
+        r, g, b = np.median(frames[0].reshape(-1, 3), axis=0)  # background colour: RGB, not BGR
+        assert r > g > b
+
+
+# --- format detection ------------------------------------------------------------------
+
+
+def test_detect_format(tmp_path):
+    assert detect_format(fx.write_dynerf(tmp_path / "a", n_frames=2)) == "dynerf"
+    assert detect_format(fx.write_easyvolcap(tmp_path / "b", n_frames=2)) == "easyvolcap"
+    (tmp_path / "c").mkdir()
+    with pytest.raises(InputError, match="poses_bounds.npy.*intri.yml") as err:
+        detect_format(tmp_path / "c")
+    assert str(tmp_path / "c") in str(err.value)
+    with pytest.raises(InputError, match="not found"):
+        detect_format(tmp_path / "missing")
+
+
+def test_forced_format_must_match_folder(tmp_path):
+    root = fx.write_dynerf(tmp_path / "s", n_frames=2)
+    assert load_scene(DataConfig(path=str(root), format="dynerf")).cameras[0].name == "cam00"
+    with pytest.raises(InputError, match="intri.yml"):
+        load_scene(DataConfig(path=str(root), format="easyvolcap"))
+
+
+# --- conventions ------------------------------------------------------------------------
+
+
+def test_dynerf_pose_round_trip(tmp_path):
+    cams = fx.ring_cameras([f"cam{i:02d}" for i in range(4)])
+    scene = _load(fx.write_dynerf(tmp_path / "s", cams, n_frames=2))
+    assert [c.name for c in scene.cameras] == [c.name for c in cams]
+    for want, got in zip(cams, scene.cameras):
+        np.testing.assert_allclose(got.R, want.R, atol=1e-12)
+        np.testing.assert_allclose(got.T, want.T, atol=1e-12)
+        np.testing.assert_allclose(got.K, want.K, atol=1e-12)  # cx = W/2, cy = H/2
+        assert (got.width, got.height) == (want.width, want.height)
+    assert scene.near == pytest.approx(1.0) and scene.far == pytest.approx(12.0)
+
+
+def test_dynerf_focal_follows_decoded_video_size(tmp_path):
+    """H, W, focal in the file at twice the video size: focal is scaled to the video."""
+    cams = fx.ring_cameras(["cam00", "cam01"])
+    scene = _load(fx.write_dynerf(tmp_path / "s", cams, n_frames=2, hwf_scale=2.0))
+    for want, got in zip(cams, scene.cameras):
+        np.testing.assert_allclose(got.K, want.K, atol=1e-12)
+
+
+def test_poses_bounds_writer_matches_stated_convention():
+    cams = fx.ring_cameras(["cam00", "cam01", "cam02"])
+    rows = poses_bounds_from_cameras(cams, [1, 2, 3], [5, 6, 7])
+    np.testing.assert_allclose(rows, fx.llff_rows(cams, [1, 2, 3], [5, 6, 7]), atol=1e-12)
+    back = cameras_from_poses_bounds(rows, [c.name for c in cams])
+    np.testing.assert_allclose(back[1].R, cams[1].R, atol=1e-12)
+
+
+@pytest.mark.parametrize("layout", ["dynerf", "easyvolcap"])
+@pytest.mark.parametrize("downsample", [1, 2])
+def test_marker_lands_where_loaded_camera_projects_it(tmp_path, layout, downsample):
+    root = _write(layout, tmp_path / "s", **(dict(ext=".jpg") if layout == "easyvolcap" else {}))
+    _assert_markers(_load(root, downsample=downsample, frame_start=1, frame_end=5))
+
+
+@pytest.mark.parametrize(
+    "options", [dict(rotation="matrix"), dict(rotation="rodrigues", dist_key="dist", write_size=False)]
+)
+def test_easyvolcap_calibration_variants_round_trip(tmp_path, options):
+    cams = fx.ring_cameras(["00", "01", "02"])
+    scene = _load(fx.write_easyvolcap(tmp_path / "s", cams, n_frames=2, **options))
+    for want, got in zip(cams, scene.cameras):
+        np.testing.assert_allclose(got.R, want.R, atol=1e-9)
+        np.testing.assert_allclose(got.T, want.T, atol=1e-12)
+        np.testing.assert_allclose(got.K, want.K, atol=1e-12)
+        assert (got.width, got.height) == (want.width, want.height)
+    _assert_markers(scene)
+
+
+def test_easyvolcap_distorted_frames_are_undistorted_with_same_K(tmp_path):
+    dist = np.array([1.2, -0.2, 0.002, -0.003, 0.0])
+    cams = fx.ring_cameras(["00", "01"]) + [
+        fx.look_at_camera("02", (0.3, 0.2, -4.0), target=(1.0, -0.7, 0.1), dist=dist)
+    ]
+    root = fx.write_easyvolcap(tmp_path / "s", cams, n_frames=3)
+    scene = _load(root)
+    got = scene.cameras[2]
+    assert got.dist is None
+    np.testing.assert_allclose(got.K, cams[2].K)
+    raw = cv2.cvtColor(cv2.imread(str(root / "images" / "02" / "000000.png")), cv2.COLOR_BGR2RGB)
+    pinhole = _projection(got, fx.marker_position(0.0))
+    assert np.abs(fx.marker_centroid(raw) - pinhole).max() > 0.8  # the raw frame is distorted
+    _assert_markers(scene)
+
+
+# --- frame range, downsampling, split -----------------------------------------------------
+
+
+@pytest.mark.parametrize("layout", ["dynerf", "easyvolcap"])
+def test_frame_range_and_times_in_seconds(tmp_path, layout):
+    root = _write(layout, tmp_path / "s", n_frames=6, fps=25.0)
+    scene = _load(root, frame_start=2, frame_end=5)
+    assert scene.fps == pytest.approx(25.0)  # dynerf: from the video; easyvolcap: scene.json
+    np.testing.assert_array_equal(scene.frame_ids, [2, 3, 4])
+    np.testing.assert_allclose(scene.times, np.array([2, 3, 4]) / 25.0)
+    assert scene.frames(1).shape[0] == 3
+    assert _load(root).n_frames == 6  # frame_end=None: everything every camera has
+
+
+def test_easyvolcap_fps_defaults_to_30_or_comes_from_metadata(tmp_path):
+    root = fx.write_easyvolcap(tmp_path / "s", n_frames=2)
+    assert _load(root).fps == 30.0
+    (root / "gt").mkdir()
+    (root / "gt" / "scene.json").write_text('{"fps": 24, "layout": "easyvolcap"}')  # synthetic scenes
+    assert _load(root).fps == 24.0
+
+
+@pytest.mark.parametrize("layout", ["dynerf", "easyvolcap"])
+def test_downsample_scales_cameras_and_frames_together(tmp_path, layout):
+    root = _write(layout, tmp_path / "s", n_frames=2)
+    full, half = _load(root), _load(root, downsample=2)
+    for a, b, c in zip(full.cameras, half.cameras, range(len(full.cameras))):
+        assert (b.width, b.height) == (a.width // 2, a.height // 2)
+        assert b.K[0, 0] == pytest.approx(a.K[0, 0] / 2) and b.K[1, 1] == pytest.approx(a.K[1, 1] / 2)
+        # the continuous image plane stays aligned: pixel centres move by half a pixel
+        assert b.K[0, 2] == pytest.approx((a.K[0, 2] + 0.5) / 2 - 0.5)
+        assert half.frames(c).shape == (2, b.height, b.width, 3)
+        np.testing.assert_array_equal(b.R, a.R)
+
+
+def test_drop_cameras_removes_camera_and_its_pose_row(tmp_path):
+    cams = fx.ring_cameras([f"cam{i:02d}" for i in range(4)])
+    scene = _load(fx.write_dynerf(tmp_path / "s", cams, n_frames=2), drop_cameras=["cam02"])
+    assert [c.name for c in scene.cameras] == ["cam00", "cam01", "cam03"]
+    np.testing.assert_allclose(scene.cameras[2].R, cams[3].R, atol=1e-12)  # row 3, not row 2
+    assert scene.far == pytest.approx(12.0) and scene.train_ids == [1, 2] and scene.test_ids == [0]
+
+
+def test_test_camera_matching():
+    assert match_camera("cam00", ["00", "01"]) == 0
+    assert match_camera("cam01", ["0", "1"]) == 1
+    assert match_camera("01", ["cam00", "cam01"]) == 1
+    assert match_camera("cam07", ["00", "01"]) is None
+    assert match_camera("left", ["right", "left"]) == 1
+
+
+def test_split_default_explicit_and_fallback(tmp_path):
+    ev = fx.write_easyvolcap(tmp_path / "ev", n_frames=2)  # names 00..03
+    scene = _load(ev)
+    assert (scene.test_ids, scene.train_ids) == ([0], [1, 2, 3])
+    scene = _load(ev, test_cameras=["cam02", "03"])
+    assert (scene.test_ids, scene.train_ids) == ([2, 3], [0, 1])
+    named = fx.write_easyvolcap(tmp_path / "named", fx.ring_cameras(["left", "mid", "right"]), n_frames=2)
+    assert _load(named).test_ids == [0]  # default cam00 matches nothing: first camera
+    with pytest.raises(InputError, match="data.test_cameras.*cam09"):
+        _load(ev, test_cameras=["cam09"])
+    with pytest.raises(InputError, match="data.test_cameras"):
+        _load(ev, test_cameras=["00", "01", "02", "03"])
+
+
+def test_scene_name_and_ground_truth_folder(tmp_path):
+    root = fx.write_dynerf(tmp_path / "flame", n_frames=2)
+    assert _load(root).name == "flame" and _load(root).ground_truth is None
+    (root / "gt").mkdir()
+    assert _load(root).ground_truth == root / "gt"
+
+
+# --- cache --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("layout", ["dynerf", "easyvolcap"])
+def test_frames_cached_once_and_reused(tmp_path, layout):
+    root = _write(layout, tmp_path / "s", n_frames=3)
+    scene = _load(root)
+    assert scene.cache_dir.is_relative_to(root / ".ftgspp_cache")
+    first = np.array(scene.frames(1))
+    files = list(scene.cache_dir.glob("*.npy"))
+    assert len(files) == 1
+    mtime = files[0].stat().st_mtime_ns
+
+    again = _load(root)
+    assert again.cache_dir == scene.cache_dir
+
+    def no_decode(cam: int) -> np.ndarray:
+        raise AssertionError("decoded again instead of reading the cache")
+
+    again.decode = no_decode
+    np.testing.assert_array_equal(again.frames(1), first)
+    assert files[0].stat().st_mtime_ns == mtime and len(list(scene.cache_dir.glob("*.npy"))) == 1
+
+
+def test_cache_dir_option_and_stale_cache(tmp_path):
+    a = fx.write_dynerf(tmp_path / "a" / "scene", n_frames=2)
+    b = fx.write_dynerf(tmp_path / "b" / "scene", fx.ring_cameras(["cam00", "cam01"]), n_frames=2)
+    sa = _load(a, cache_dir=str(tmp_path / "cache"))
+    sb = _load(b, cache_dir=str(tmp_path / "cache"))
+    assert sa.cache_dir.parent == tmp_path / "cache"
+    assert sa.cache_dir != sb.cache_dir  # same scene name, different scenes: separate caches
+    sa.frames(0)
+    os.utime(a / "cam00.mp4", ns=(1, 1))  # the video changed: its cache must not be reused
+    assert _load(a, cache_dir=str(tmp_path / "cache")).cache_dir != sa.cache_dir
+
+
+# --- bad input: one InputError naming the file --------------------------------------------
+
+
+def _poses(root: Path) -> np.ndarray:
+    return np.load(root / "poses_bounds.npy")
+
+
+def _corrupt_bytes(path: Path) -> None:
+    path.write_bytes(b"this is not what it claims to be" * 8)
+
+
+DYNERF_BAD = {
+    "poses wrong shape": (lambda r: np.save(r / "poses_bounds.npy", _poses(r)[:, :15]), {}, "poses_bounds.npy"),
+    "poses NaN": (
+        lambda r: np.save(r / "poses_bounds.npy", np.where(np.eye(4, 17, 3) > 0, np.nan, _poses(r))),
+        {},
+        "poses_bounds.npy",
+    ),
+    "poses Inf": (
+        lambda r: np.save(r / "poses_bounds.npy", np.where(np.eye(4, 17, 16) > 0, np.inf, _poses(r))),
+        {},
+        "poses_bounds.npy",
+    ),
+    "poses not npy": (lambda r: _corrupt_bytes(r / "poses_bounds.npy"), {}, "poses_bounds.npy"),
+    "poses not a rotation": (
+        lambda r: np.save(r / "poses_bounds.npy", _poses(r) * np.r_[[2.0] * 3, [1.0] * 14]),
+        {},
+        "poses_bounds.npy",
+    ),
+    "more rows than videos": (
+        lambda r: np.save(r / "poses_bounds.npy", np.vstack([_poses(r), _poses(r)[:1]])),
+        {},
+        "poses_bounds.npy.*5 camera rows.*4 videos",
+    ),
+    "fewer rows than videos": (
+        lambda r: np.save(r / "poses_bounds.npy", _poses(r)[:3]),
+        {},
+        "poses_bounds.npy.*3 camera rows.*4 videos",
+    ),
+    "corrupt video": (lambda r: _corrupt_bytes(r / "cam02.mp4"), {}, "cam02.mp4"),
+    "short video": (
+        lambda r: fx.write_video(r / "cam01.mp4", [fx.render_frame(fx.ring_cameras(["x"])[0], 0.0)] * 3, 30.0),
+        dict(frame_end=5),
+        "cam01.mp4.*3 frames.*needs 5",
+    ),
+    "range past every video": (lambda r: None, dict(frame_start=6), "cam00.mp4.*6 frames"),
+    "video of another aspect": (
+        lambda r: fx.write_video(r / "cam03.mp4", [np.zeros((24, 40, 3), np.uint8)] * 6, 30.0),
+        {},
+        "cam03.mp4.*40x24",
+    ),
+    "empty frame range": (lambda r: None, dict(frame_start=3, frame_end=3), "data.frame_end.*empty"),
+    "negative frame start": (lambda r: None, dict(frame_start=-1), "data.frame_start"),
+    "unknown drop camera": (lambda r: None, dict(drop_cameras=["cam13"]), "data.drop_cameras.*cam13"),
+    "every camera dropped": (
+        lambda r: None, dict(drop_cameras=["cam00", "cam01", "cam02", "cam03"]), "data.drop_cameras.*every"
+    ),
+    "unknown test camera": (lambda r: None, dict(test_cameras=["cam13"]), "data.test_cameras.*cam13"),
+    "downsample below 1": (lambda r: None, dict(downsample=0.5), "data.downsample"),
+    "unknown format": (lambda r: None, dict(format="llff"), "data.format.*llff"),
+    "missing folder": (lambda r: None, dict(path="/nonexistent/scene"), "/nonexistent/scene.*not found"),
+}
+
+
+@pytest.mark.parametrize("case", list(DYNERF_BAD))
+def test_dynerf_bad_input_raises_input_error(tmp_path, case):
+    mutate, options, pattern = DYNERF_BAD[case]
+    root = fx.write_dynerf(tmp_path / "s", n_frames=6)
+    mutate(root)
+    with pytest.raises(InputError, match=pattern) as err:
+        load_scene(DataConfig(**{"path": str(root), **options}))
+    assert "\n" not in str(err.value)
+
+
+def _drop_line(path: Path, prefix: str) -> None:
+    """Remove the yml entry starting with ``prefix`` (and its indented continuation lines)."""
+    out, skipping = [], False
+    for line in path.read_text().splitlines(keepends=True):
+        if line.startswith(prefix):
+            skipping = True
+            continue
+        if skipping and line.startswith("   "):
+            continue
+        skipping = False
+        out.append(line)
+    path.write_text("".join(out))
+
+
+EASYVOLCAP_BAD = {
+    "intri missing K": (lambda r: _drop_line(r / "intri.yml", "K_01:"), {}, "intri.yml.*K_01"),
+    "intri missing names": (lambda r: _drop_line(r / "intri.yml", "names:"), {}, "intri.yml.*names"),
+    "extri missing T": (lambda r: _drop_line(r / "extri.yml", "T_02:"), {}, "extri.yml.*T_02"),
+    "extri missing R": (lambda r: _drop_line(r / "extri.yml", "R_00:"), {}, "extri.yml.*R_00"),
+    "extri not yaml": (lambda r: _corrupt_bytes(r / "extri.yml"), {}, "extri.yml"),
+    "intri missing file": (lambda r: (r / "intri.yml").unlink(), dict(format="easyvolcap"), "intri.yml.*not found"),
+    "K with NaN": (
+        lambda r: (r / "intri.yml").write_text((r / "intri.yml").read_text().replace("data: [ 30", "data: [ .NaN", 1)),
+        {},
+        "intri.yml.*K_00.*NaN",
+    ),
+    "missing image": (lambda r: (r / "images" / "01" / "000003.png").unlink(), dict(frame_end=6), "01/000003.png"),
+    "missing image folder": (lambda r: os.rename(r / "images" / "02", r / "images" / "x"), {}, "images/02"),
+    "range past images": (lambda r: None, dict(frame_end=9), "000006.png.*6 frames.*needs 9"),
+    "unknown test camera": (lambda r: None, dict(test_cameras=["cam07"]), "data.test_cameras.*cam07"),
+    "bad scene.json": (lambda r: (r / "scene.json").write_text("{fps: "), {}, "scene.json"),
+}
+
+
+@pytest.mark.parametrize("case", list(EASYVOLCAP_BAD))
+def test_easyvolcap_bad_input_raises_input_error(tmp_path, case):
+    mutate, options, pattern = EASYVOLCAP_BAD[case]
+    root = fx.write_easyvolcap(tmp_path / "s", n_frames=6)
+    mutate(root)
+    with pytest.raises(InputError, match=pattern) as err:
+        load_scene(DataConfig(**{"path": str(root), **options}))
+    assert "\n" not in str(err.value)
+
+
+LAZY_BAD = {
+    "dynerf video removed": ("dynerf", lambda r: (r / "cam01.mp4").unlink(), "cam01.mp4"),
+    "dynerf video truncated": (
+        "dynerf",
+        lambda r: fx.write_video(r / "cam01.mp4", [fx.render_frame(fx.ring_cameras(["x"])[0], 0.0)] * 2, 30.0),
+        "cam01.mp4.*decoding stopped",
+    ),
+    "easyvolcap corrupt image": (
+        "easyvolcap",
+        lambda r: _corrupt_bytes(r / "images" / "01" / "000002.png"),
+        "000002.png",
+    ),
+    "easyvolcap resized image": (
+        "easyvolcap",
+        lambda r: cv2.imwrite(str(r / "images" / "01" / "000001.png"), np.zeros((12, 16, 3), np.uint8)),
+        "000001.png.*16x12",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(LAZY_BAD))
+def test_decode_failure_after_loading_raises_input_error(tmp_path, case):
+    layout, mutate, pattern = LAZY_BAD[case]
+    scene = _load(_write(layout, tmp_path / "s", n_frames=4))
+    mutate(scene.root)  # the files change between loading and decoding
+    with pytest.raises(InputError, match=pattern):
+        scene.frames(1)
+    assert not list(scene.cache_dir.glob("*.npy"))  # nothing half-written to the cache
