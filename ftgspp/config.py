@@ -50,6 +50,9 @@ class InitConfig:
     ratio_test: float = 0.75
     max_reproj_px: float = 2.0
     velocity: str = "knn"  # knn | flow
+    flow_model: str = "dis"  # optical-flow model for velocity=flow (registry in ftgspp/init/flow.py)
+    flow_min_weight: float = 1.0  # summed covisibility weight needed to accept a flow velocity
+    flow_max_disp: float = 3.0  # accept only |v| dt <= this x local kNN spacing
     knn_k: int = 3
     opacity: float = 0.5
     duration: float = 0.1  # seconds

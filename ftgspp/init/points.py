@@ -344,8 +344,12 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
             f"{len(kfs)} keyframes (depth range {near:g}..{far:g}); check the calibration, "
             "init.depth_prior or init.near/init.far",
         )
-    velocities = keyframe_velocities(points, kf_times, cfg)
+    velocities = keyframe_velocities(points, kf_times, cfg)  # kNN: the result, or the flow's fallback
     spacing = [knn_spacing(p.astype(np.float64)) for p in points]
+    if cfg.velocity == "flow":
+        from ftgspp.init.flow_velocity import keyframe_flow_velocities
+
+        velocities, _ = keyframe_flow_velocities(scene, kfs, points, velocities, spacing, cfg)
     all_spacing = np.concatenate(spacing)
     finite = all_spacing[np.isfinite(all_spacing)]
     fallback = float(np.median(finite)) if len(finite) else 0.01 * scene_scale(scene)

@@ -42,12 +42,7 @@ def knn_velocity(points_t: np.ndarray, points_next: np.ndarray, dt: float, k: in
 
 def check_velocity_mode(cfg: InitConfig) -> None:
     """Raise ``InputError`` unless ``cfg.velocity`` names an available method."""
-    if cfg.velocity == "flow":
-        raise InputError(
-            "init.velocity",
-            "'flow' is not available yet (flow-guided velocity is a later issue); use init.velocity=knn",
-        )
-    if cfg.velocity != "knn":
+    if cfg.velocity not in ("knn", "flow"):
         raise InputError("init.velocity", f"unknown value {cfg.velocity!r}; expected 'knn' or 'flow'")
 
 

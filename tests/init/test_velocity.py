@@ -74,8 +74,6 @@ def test_keyframes_forward_and_last_backward():
     assert np.array_equal(single[0], np.zeros((200, 3)))
 
 
-def test_flow_and_unknown_modes_are_input_errors():
-    with pytest.raises(InputError, match="init.velocity.*'flow' is not available yet"):
-        keyframe_velocities([np.zeros((1, 3))], [0.0], InitConfig(velocity="flow"))
+def test_unknown_mode_is_an_input_error():
     with pytest.raises(InputError, match="init.velocity"):
         keyframe_velocities([np.zeros((1, 3))], [0.0], InitConfig(velocity="magic"))

@@ -1,0 +1,295 @@
+"""Diagnostics: lifetimes (against a numeric search), flow colour coding, pixel velocities
+(against finite differences), x–t slices, motion error of hand-built moving models, and the
+end-to-end ``run_diagnostics`` / ``ftgspp diagnose`` outputs.
+
+The scenes are built here: one camera looking along +z at a wall of small opaque Gaussians
+(depth 4) with an optional moving square of Gaussians in front of it (depth 3).
+"""
+
+from __future__ import annotations
+
+import colorsys
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy.optimize import brentq
+
+from ftgspp.config import InitConfig, ModelConfig, TrainConfig
+from ftgspp.data.scene import Camera, Scene
+from ftgspp.diagnostics import (
+    color_wheel, composite, flow_to_rgb, lifetime_fractions, lifetime_histogram, motion_error,
+    pixel_velocities, run_diagnostics, subset_model, velocity_map, xt_slice,
+)  # fmt: skip
+from ftgspp.model import FreeTimeGaussians, duration_to_param
+
+W, H, FOCAL = 64, 48, 60.0
+FPS = 10.0
+WALL_Z, OBJ_Z = 4.0, 3.0
+OBJ_HALF = 0.6  # the object square spans |x|, |y| < 0.6 (world units at depth 3)
+V_OBJ = np.array([0.5, -0.25, 0.0])  # units / s
+
+
+def camera(name: str = "cam00") -> Camera:
+    K = np.array([[FOCAL, 0, (W - 1) / 2], [0, FOCAL, (H - 1) / 2], [0, 0, 1.0]])
+    return Camera(name=name, K=K, R=np.eye(3), T=np.zeros(3), width=W, height=H)
+
+
+# --------------------------------------------------------------------------- lifetimes
+
+
+def lifetime_by_search(o: float, g: float, s: float, mu: float, theta: float) -> float:
+    """Length of {t : o (g + (1 - g) a(t)) >= theta} by root finding (inf if always)."""
+    f = lambda t: o * (g + (1 - g) * np.exp(-0.5 * ((t - mu) / s) ** 2)) - theta  # noqa: E731
+    if f(mu) < 0:
+        return 0.0
+    if f(mu + 1e6 * s) >= 0:
+        return np.inf
+    return 2 * (brentq(f, mu, mu + 100 * s, xtol=1e-12) - mu)
+
+
+@pytest.mark.parametrize("gate", [False, True])
+def test_lifetimes_match_numeric_search_and_histogram(gate):
+    rng = np.random.default_rng(0)
+    n = 300
+    cfg = ModelConfig(gate=gate, max_duration=1.0 if gate else None, sh_degree=0)
+    model = FreeTimeGaussians.from_points(rng.normal(size=(n, 3)), rng.uniform(size=(n, 3)), rng.uniform(0, 1, n),
+                                          np.zeros((n, 3)), np.full(n, 0.1), cfg, InitConfig())  # fmt: skip
+    with torch.no_grad():
+        model.params["opacities"].copy_(torch.from_numpy(rng.normal(0, 2, n)).float())
+        model.params["durations"].copy_(torch.from_numpy(rng.normal(0, 1.5, n)).float())
+        model.params["gates"].copy_(torch.from_numpy(rng.uniform(-0.3, 0.1, n)).float())
+    duration, theta = 0.8, 0.05
+    frac = lifetime_fractions(model, theta, duration)
+    o = model.base_opacity().detach().double().numpy()
+    g = model.gate().detach().double().numpy()
+    s = model.temporal_scale().detach().double().numpy()
+    mu = model.params["times"].detach().double().numpy()
+    oracle = np.array([lifetime_by_search(o[i], g[i], s[i], mu[i], theta) for i in range(n)]) / duration
+    finite = np.isfinite(oracle)
+    assert np.array_equal(np.isfinite(frac), finite)
+    if gate:
+        assert (~finite).sum() > 10 and (oracle == 0).sum() > 10  # both extremes exercised
+    np.testing.assert_allclose(frac[finite], oracle[finite], rtol=1e-4, atol=1e-6)
+    counts, edges = lifetime_histogram(frac, bins=25, max_fraction=1.5)
+    expect, expect_edges = np.histogram(np.minimum(oracle, 1.5), bins=25, range=(0, 1.5))
+    assert np.array_equal(counts, expect) and np.allclose(edges, expect_edges)
+    assert counts.sum() == n
+
+
+# --------------------------------------------------------------------------- colour coding
+
+
+@pytest.mark.parametrize(
+    "direction, hue",
+    [((1, 0), 0.0), ((1, 1), 1 / 8), ((0, 1), 0.25), ((-1, 0), 0.5), ((0, -1), 0.75), ((1, -1), 7 / 8)],
+)
+def test_flow_colour_hue_is_direction(direction, hue):
+    flow = np.zeros((1, 2, 2))
+    flow[0, 0] = np.array(direction, float) / np.linalg.norm(direction) * 3.0  # full speed
+    flow[0, 1] = flow[0, 0] / 3.0  # a third of it
+    rgb, vmax = flow_to_rgb(flow, max_magnitude=3.0)
+    assert vmax == 3.0
+    h, s, v = colorsys.rgb_to_hsv(*rgb[0, 0])
+    assert min(abs(h - hue), 1 - abs(h - hue)) < 1e-6 and s == pytest.approx(1.0) and v == pytest.approx(1.0)
+    h2, _, v2 = colorsys.rgb_to_hsv(*rgb[0, 1])
+    assert v2 == pytest.approx(1 / 3) and min(abs(h2 - hue), 1 - abs(h2 - hue)) < 1e-6
+
+
+def test_flow_colour_mask_and_wheel():
+    flow = np.zeros((2, 2, 2))
+    mask = np.array([[True, False], [True, True]])
+    rgb, _ = flow_to_rgb(flow, 1.0, mask=mask)
+    assert np.all(rgb[0, 1] == 1.0) and np.all(rgb[mask] == 0.0)  # no motion: black; masked: white
+    wheel = color_wheel(41)
+    assert wheel.shape == (41, 41, 3)
+    np.testing.assert_allclose(wheel[20, 40], [1, 0, 0], atol=1e-6)  # right: red
+    np.testing.assert_allclose(wheel[20, 0], [0, 1, 1], atol=1e-6)  # left: cyan
+    assert colorsys.rgb_to_hsv(*wheel[40, 20])[0] == pytest.approx(0.25)  # down (+y)
+    assert np.all(wheel[0, 0] == 1.0)  # outside the disc
+
+
+# --------------------------------------------------------------------------- models and velocities
+
+
+def wall_and_object(moving: bool = True, obj_velocity: np.ndarray = V_OBJ) -> tuple[FreeTimeGaussians, np.ndarray]:
+    """Opaque static wall (z = 4) + square object (z = 3) moving with ``obj_velocity``.
+
+    Returns the model and the object indicator ``[N]``. Gaussians are 0.06 apart with
+    scale 0.05 (about a pixel), opacity 0.99, constant in time (huge temporal scale).
+    """
+    def grid(half_x, half_y, z, step):
+        xs, ys = np.arange(-half_x, half_x + 1e-9, step), np.arange(-half_y, half_y + 1e-9, step)
+        X, Y = np.meshgrid(xs, ys)
+        return np.stack([X.ravel(), Y.ravel(), np.full(X.size, z)], axis=1)
+
+    wall = grid(2.6, 2.0, WALL_Z, 0.06)
+    obj = grid(OBJ_HALF, OBJ_HALF, OBJ_Z, 0.045)
+    means = np.concatenate([wall, obj])
+    is_obj = np.r_[np.zeros(len(wall), bool), np.ones(len(obj), bool)]
+    vel = np.where(is_obj[:, None] & moving, obj_velocity, 0.0)
+    colors = np.where(is_obj[:, None], [0.9, 0.2, 0.1], [0.2, 0.4, 0.8])
+    cfg, init = ModelConfig(sh_degree=0), InitConfig(opacity=0.99, duration=1e3, scale_factor=1.0)
+    n = len(means)
+    model = FreeTimeGaussians.from_points(means, colors, np.zeros(n), vel, np.full(n, 0.05), cfg, init)
+    return model, is_obj
+
+
+def test_pixel_velocities_match_finite_differences():
+    rng = np.random.default_rng(1)
+    n = 50
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    R *= np.sign(np.linalg.det(R))  # a rotation
+    cam = Camera("c", np.array([[70.0, 0, 30], [0, 65.0, 20], [0, 0, 1]]), R, rng.normal(size=3), 64, 48)
+    forward = cam.R.T @ np.array([0, 0, 1.0])  # optical axis in world coordinates
+    means = cam.center + forward * rng.uniform(2, 6, (n, 1)) + rng.normal(0, 0.5, (n, 3))
+    model = FreeTimeGaussians.from_points(means, np.zeros((n, 3)), rng.uniform(0, 1, n), rng.normal(size=(n, 3)),
+                                          np.full(n, 0.1), ModelConfig(sh_degree=0), InitConfig())  # fmt: skip
+    t, eps = 0.4, 1e-4
+
+    p = {k: v.detach().double().numpy() for k, v in model.params.items()}
+
+    def proj(tt):  # float64 pinhole projection of the moving centres
+        mu = p["means"] + p["velocities"] * (tt - p["times"])[:, None]
+        xc = mu @ cam.R.T + cam.T
+        uv = xc @ cam.K.T
+        return uv[:, :2] / uv[:, 2:]
+
+    fd = (proj(t + eps) - proj(t - eps)) / (2 * eps)
+    np.testing.assert_allclose(pixel_velocities(model, cam, t).numpy(), fd, rtol=1e-4, atol=1e-4)
+
+
+def test_velocity_map_of_a_translating_square():
+    model, is_obj = wall_and_object()
+    cam = camera()
+    flow, alpha = velocity_map(model, cam, 0.0, FPS)
+    assert flow.shape == (H, W, 2) and alpha.shape == (H, W)
+    expect = FOCAL * V_OBJ[:2] / OBJ_Z / FPS  # px/frame of a fronto-parallel translation
+    centre = flow[H // 2 - 8 : H // 2 + 8, W // 2 - 8 : W // 2 + 8].reshape(-1, 2)
+    np.testing.assert_allclose(centre, np.broadcast_to(expect, centre.shape), rtol=1e-3, atol=1e-4)
+    assert np.abs(flow[:, :4]).max() < 1e-6  # the static wall at the left edge
+    rgb, _ = flow_to_rgb(flow, mask=alpha > 0.5)
+    h = colorsys.rgb_to_hsv(*rgb[H // 2, W // 2])[0]  # right and up: hue between 3/4 and 1
+    assert h == pytest.approx((np.arctan2(expect[1], expect[0]) / (2 * np.pi)) % 1.0, abs=1e-3)
+
+
+def test_xt_slice_shape_and_content():
+    frames = np.random.default_rng(0).integers(0, 255, size=(7, 12, 20, 3), dtype=np.uint8)
+    sl = xt_slice(frames, 5)
+    assert sl.shape == (7, 20, 3)
+    assert np.array_equal(sl[3], frames[3, 5])
+
+
+def object_masks(cam: Camera, t: float, margin_px: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+    """Object mask (uint8 [H, W]) of the square at time t and a band of +-margin around its edge."""
+    c = V_OBJ * t
+    x0, x1 = [FOCAL * (c[0] + s * OBJ_HALF) / OBJ_Z + cam.K[0, 2] for s in (-1, 1)]
+    y0, y1 = [FOCAL * (c[1] + s * OBJ_HALF) / OBJ_Z + cam.K[1, 2] for s in (-1, 1)]
+    yy, xx = np.mgrid[0:H, 0:W]
+    inside = (xx >= x0) & (xx <= x1) & (yy >= y0) & (yy <= y1)
+    dist = np.minimum.reduce([np.abs(xx - x0), np.abs(xx - x1), np.abs(yy - y0), np.abs(yy - y1)])
+    edge = dist < margin_px
+    return inside.astype(np.uint8), edge
+
+
+def test_motion_error_zero_for_matching_flow_and_large_for_wrong():
+    model, _ = wall_and_object()
+    cam = camera()
+    t = 0.2
+    vel, alpha = composite(model, cam, t, model.params["velocities"].detach())
+    objects, edge = object_masks(cam, t)
+    alpha = np.where(edge, 0.0, alpha)  # mixed pixels at the silhouette are left out
+    gt = np.where(objects[..., None] > 0, V_OBJ, 0.0)
+    good = motion_error(vel, alpha, gt, objects)
+    assert good["n_dynamic_px"] > 150 and good["n_static_px"] > 1000
+    assert good["epe_dynamic"] < 1e-3 * np.linalg.norm(V_OBJ) and good["leak_static"] < 1e-4
+    assert good["gt_speed_dynamic"] == pytest.approx(np.linalg.norm(V_OBJ), rel=1e-6)
+    wrong = motion_error(vel, alpha, -gt, objects)  # object moving the other way
+    assert wrong["epe_dynamic"] == pytest.approx(2 * np.linalg.norm(V_OBJ), rel=1e-3)
+    # a model that moves the wall too leaks speed into the static region
+    leaky, _ = wall_and_object()
+    with torch.no_grad():
+        leaky.params["velocities"][:] = torch.tensor(V_OBJ, dtype=torch.float32)
+    v2, a2 = composite(leaky, cam, t, leaky.params["velocities"].detach())
+    assert motion_error(v2, np.where(edge, 0.0, a2), gt, objects)["leak_static"] == pytest.approx(
+        np.linalg.norm(V_OBJ), rel=1e-3)
+
+
+def test_subset_model_keeps_only_the_selected_gaussians():
+    model, is_obj = wall_and_object()
+    sub = subset_model(model, is_obj)
+    assert len(sub) == int(is_obj.sum())
+    torch.testing.assert_close(sub.params["means"], model.params["means"][torch.from_numpy(is_obj)])
+
+
+# --------------------------------------------------------------------------- end to end
+
+
+def tiny_scene(tmp_path: Path, model: FreeTimeGaussians, is_obj: np.ndarray, n_frames: int = 4) -> Scene:
+    """A one-camera scene whose frames are renders of ``model`` and whose gt/ matches it
+    (object mask where the rendered object indicator is > 0.5: a short-lived object vanishes)."""
+    cam = camera()
+    times = np.arange(n_frames) / FPS
+    ind = torch.from_numpy(is_obj[:, None]).float()  # [N, 1]
+    colors = ind * torch.tensor([[0.9, 0.2, 0.1]]) + (1 - ind) * torch.tensor([[0.2, 0.4, 0.8]])
+    frames, objs = [], []
+    for t in times:
+        rgb_ind, _ = composite(model, cam, t, torch.cat([colors, ind], dim=1))  # [H, W, 4]
+        frames.append(np.clip(np.round(rgb_ind[..., :3] * 255), 0, 255).astype(np.uint8))
+        objs.append((rgb_ind[..., 3] > 0.5).astype(np.uint8))
+    frames, objs = np.stack(frames), np.stack(objs)
+    gt = tmp_path / "gt"
+    for sub in ("depth", "flow3d", "objects"):
+        (gt / sub).mkdir(parents=True)
+    np.save(gt / "objects" / "cam00.npy", objs)
+    np.save(gt / "depth" / "cam00.npy", np.where(objs > 0, OBJ_Z, WALL_Z).astype(np.float32))
+    np.save(gt / "flow3d" / "cam00.npy", np.where(objs[..., None] > 0, V_OBJ, 0.0).astype(np.float16))
+    return Scene(name="tiny", root=tmp_path, cameras=[cam], frame_ids=np.arange(n_frames), fps=FPS, train_ids=[0],
+                 test_ids=[0], decode=lambda i: frames, ground_truth=gt)  # fmt: skip
+
+
+def test_run_diagnostics_writes_readable_outputs(tmp_path):
+    model, is_obj = wall_and_object()
+    with torch.no_grad():  # object short-lived (s = 0.04 s, gone after frame 1), wall long-lived
+        model.params["durations"][torch.from_numpy(is_obj)] = duration_to_param(0.04, None)
+    scene = tiny_scene(tmp_path, model, is_obj)
+    cfg = TrainConfig()
+    cfg.model.sh_degree = 0
+    res = run_diagnostics(model, scene, cfg, tmp_path / "diag", frame=1)
+    names = {"lifetime_histogram", "lifetime_groups", "velocity_map", "xt_slice", "motion_error", "json"}
+    assert set(res["files"]) == names
+    for path in res["files"].values():
+        assert Path(path).is_file() and Path(path).stat().st_size > 1000
+    saved = json.loads((tmp_path / "diag" / "diagnostics.json").read_text())
+    assert saved["lifetime"]["n_short_lived"] == int(is_obj.sum())
+    assert saved["lifetime"]["n_long_lived"] == int((~is_obj).sum())
+    # every classified long-lived Gaussian is on the static wall, every short-lived on the object
+    assert saved["lifetime"]["long_lived_on_static"] == 1.0 and saved["lifetime"]["short_lived_on_dynamic"] == 1.0
+    # motion: only silhouette pixels (mixed object / wall velocity) contribute to the error
+    assert saved["motion"]["leak_static"] < 0.1 * np.linalg.norm(V_OBJ)
+    assert saved["motion"]["epe_dynamic"] < 0.1 * np.linalg.norm(V_OBJ)
+
+
+def test_diagnose_cli_on_a_generated_scene(tmp_path, capsys):
+    synthetic = pytest.importorskip("ftgspp.data.synthetic")
+    from ftgspp.diagnostics import main
+
+    root = synthetic.generate(tmp_path / "scene", layout="easyvolcap", preset="studio", seed=0,
+                              n_cameras=3, n_frames=3, width=48, height=36, supersample=1)  # fmt: skip
+    model, _ = wall_and_object(moving=True)
+    run = tmp_path / "run"
+    run.mkdir()
+    cfg = TrainConfig()
+    cfg.data.path = str(root)
+    cfg.model = ModelConfig(sh_degree=0)
+    (run / "config.json").write_text(json.dumps(asdict(cfg)))
+    torch.save({k: v.detach() for k, v in model.params.items()}, run / "gaussians.pt")
+    assert main([str(run), "--theta", "0.1", "--frame", "1"]) == 0
+    printed = capsys.readouterr().out.split()
+    assert len(printed) == 6 and all(Path(p).is_file() for p in printed)
+    assert Path(printed[0]).parent == run / "diagnostics"
+    saved = json.loads((run / "diagnostics" / "diagnostics.json").read_text())
+    assert saved["theta"] == 0.1 and saved["frame"] == 1 and "motion" in saved
