@@ -46,11 +46,15 @@ def main(overrides: list[str]) -> int:
     check_overrides(overrides)
     register()
     result: dict[str, RunResult] = {}
+    errors: list[InputError] = []
 
     @hydra.main(config_path=str(CONF_DIR), config_name="train", version_base="1.3")
     def _app(dcfg: DictConfig) -> None:
         out_dir = Path(HydraConfig.get().runtime.output_dir)
-        result["run"] = run_training(to_train_config(dcfg), out_dir)
+        try:
+            result["run"] = run_training(to_train_config(dcfg), out_dir)
+        except InputError as err:  # Hydra would print it with a traceback; we print one line
+            errors.append(err)
 
     argv = sys.argv
     sys.argv = [argv[0], *overrides]
@@ -58,6 +62,8 @@ def main(overrides: list[str]) -> int:
         _app()
     finally:
         sys.argv = argv
+    if errors:
+        raise errors[0]
     run = result["run"]
     print(json.dumps({"status": run.status, "failure": run.failure, "out_dir": str(run.out_dir), **run.metrics}))
     return 0 if run.status == "FINISHED" else 1
