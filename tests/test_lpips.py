@@ -2,7 +2,7 @@
 
 Oracles: the official LPIPS VGG v0.1 distances for ex_ref/ex_p0/ex_p1 (expected.json),
 exact zero for identical images, and hand-built pickles. Weights are fetched on first use
-(see lpips_conftest_helpers.py).
+(see conftest.py).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from ftgspp.lpips import LPIPS, WEIGHT_FILES, WeightsError, fetch, load_lpips, m
 from ftgspp.lpips import weights as weights_mod
 from ftgspp.lpips.weights import flax_to_torch, safe_load_numpy_pickle
 from ftgspp.metrics import evaluate_images, lpips_distance, read_image
-from lpips_conftest_helpers import LPIPS_REF_DIR, lpips_models, lpips_weights  # noqa: F401
+from conftest import LPIPS_REF_DIR
 
 
 @pytest.fixture(scope="module")

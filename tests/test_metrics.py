@@ -30,7 +30,7 @@ from ftgspp.metrics import (
     ssim,
     ssim_same,
 )
-from lpips_conftest_helpers import LPIPS_REF_DIR, lpips_models, lpips_weights  # noqa: F401
+from conftest import LPIPS_REF_DIR
 
 BASE_KEYS = ["psnr", "ssim1", "ssim2", "dssim1", "dssim2"]
 LPIPS_KEYS = ["lpips_alex", "lpips_vgg", "lpips_alex_01", "lpips_vgg_01"]

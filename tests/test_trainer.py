@@ -10,7 +10,6 @@ import pytest
 import torch
 
 from ftgspp.config import TrainConfig
-from ftgspp.data.load import load_scene
 from ftgspp.trainer import train
 
 

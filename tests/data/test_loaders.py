@@ -8,7 +8,6 @@ checks test the loaders' conventions independently of their code.
 from __future__ import annotations
 
 import os
-from dataclasses import replace
 from pathlib import Path
 
 import cv2

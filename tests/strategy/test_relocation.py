@@ -1,6 +1,5 @@
 """Relocation policies: count kept, moments reset, and what each policy does to o and s."""
 
-import math
 
 import numpy as np
 import pytest

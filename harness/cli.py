@@ -1,0 +1,142 @@
+"""The ``study`` command: list, run, status and report the paper's studies.
+
+    study list
+    study run NAME [--profile quick|paper|smoke] [--seeds N] [--scenes A,B] [--variants A,B]
+                   [--jobs N] [key=value overrides ...]
+    study status NAME [same selection options]
+    study report NAME [same selection options] [--out DIR]
+
+Studies live in ``studies/NAME.yaml``. Runs are tracked in MLflow (``sqlite:///mlflow.db``
+in the working directory unless ``MLFLOW_TRACKING_URI`` or ``tracking.uri=`` says
+otherwise); ``status`` and ``report`` without selection options use the latest ``run``
+invocation of the study. Bad input (unknown study, variant or scene, bad override,
+unreachable tracking store) prints one line and exits 2 before anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ftgspp.errors import InputError, exit_on_input_error
+from harness.studies import PROFILES, Selection
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a usage error as one line and exit status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        print(f"error: {self.prog}: {message} (see study --help)", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def _csv(text: str) -> list[str]:
+    return [t for t in text.split(",") if t]
+
+
+def _selection_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("name", help="study name (study list)")
+    p.add_argument("--profile", choices=PROFILES, default=None, help="quick (default), paper or smoke")
+    p.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the profile's)")
+    p.add_argument("--scenes", type=_csv, action="extend", default=[], help="comma-separated subset of scenes")
+    p.add_argument("--variants", type=_csv, action="extend", default=[], help="comma-separated subset of variants")
+    p.add_argument("overrides", nargs="*", help="Hydra overrides for every run, e.g. iterations=500")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="study", description=__doc__.split("\n\n")[0],
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub.add_parser("list", help="the studies, their questions and run counts")
+    run = sub.add_parser("run", help="run the missing or failed runs of a study")
+    _selection_args(run)
+    run.add_argument("--jobs", type=int, default=1, help="parallel runs (Hydra joblib launcher); default 1")
+    status = sub.add_parser("status", help="done / failed / missing runs per variant, scene and seed")
+    _selection_args(status)
+    report = sub.add_parser("report", help="tables and plots into reports/NAME/")
+    _selection_args(report)
+    report.add_argument("--out", type=Path, default=Path("reports"), help="reports root (default: reports)")
+    return parser
+
+
+def _selection(args: argparse.Namespace, required: bool) -> Selection | None:
+    given = args.profile or args.seeds is not None or args.scenes or args.variants or args.overrides
+    if not given and not required:
+        return None
+    return Selection(profile=args.profile or "quick", seeds=args.seeds, scenes=list(args.scenes),
+                     variants=list(args.variants), overrides=list(args.overrides))
+
+
+def cmd_list() -> int:
+    from harness.studies import list_studies, load_study
+
+    for name in list_studies():
+        s = load_study(name)
+        print(f"{name}: {s.question}")
+        for prof in ("quick", "paper"):
+            p = s.profiles[prof]
+            n = len(p.variants) * len(p.scenes) * p.seeds
+            print(f"    {prof:5s}: {n:4d} runs = {len(p.variants)} variants x {len(p.scenes)} scenes x {p.seeds} seeds;"
+                  f" {p.expected_runtime}")
+        print(f"    run: {s.profiles['quick'].command}")
+    return 0
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    from harness.report import collect
+
+    data = collect(args.name, _selection(args, required=False))
+    df = data.df
+    print(f"{args.name} ({data.sel.profile}): {len(df)} runs in {data.experiment} at {data.uri}")
+    width = max(len("variant"), *(len(v) for v in df.variant))
+    swidth = max(len("scene"), *(len(s) for s in df.scene))
+    print(f"  {'variant':{width}s}  {'scene':{swidth}s}  done  failed  missing  detail")
+    for (v, s), sub in df.groupby(["variant", "scene"], sort=False):
+        done = int((sub.status == "FINISHED").sum())
+        failed = sub[sub.status.isin(["FAILED", "KILLED"])]
+        missing = sub[sub.status.isin(["MISSING", "RUNNING"])]
+        detail = []
+        if len(failed):
+            detail.append("failed seeds " + ", ".join(f"{r.seed}" + (f" ({r.failure})" if r.failure else "")
+                                                       for r in failed.itertuples()))
+        if len(missing):
+            detail.append("missing seeds " + ", ".join(str(x) for x in missing.seed))
+        print(f"  {v:{width}s}  {s:{swidth}s}  {done:4d}  {len(failed):6d}  {len(missing):7d}  {'; '.join(detail)}")
+    done = int((df.status == "FINISHED").sum())
+    failed = int(df.status.isin(["FAILED", "KILLED"]).sum())
+    print(f"total: {done} done, {failed} failed, {len(df) - done - failed} missing")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``study`` console script."""
+    parser = build_parser()
+    # overrides may come after options too (argparse would have consumed the positional early)
+    args, extra = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
+    if extra and (args.command == "list" or any(e.startswith("-") for e in extra)):
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    if extra:
+        args.overrides = [*args.overrides, *extra]
+    try:
+        if args.command == "list":
+            return cmd_list()
+        if args.command == "run":
+            from harness.runner import run_study
+
+            run_study(args.name, _selection(args, required=True), jobs=args.jobs)
+            return 0
+        if args.command == "status":
+            return cmd_status(args)
+        if args.command == "report":
+            from harness.report import write_report
+
+            write_report(args.name, _selection(args, required=False), reports_root=args.out)
+            return 0
+    except InputError as err:
+        exit_on_input_error(err)
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,61 @@
+"""Flatten a resolved training config and hash the part that decides the result.
+
+``flatten_config`` gives the dotted ``key -> str`` mapping logged as MLflow params.
+``config_hash`` hashes it minus keys that only say where or how verbosely a run writes
+(``HASH_EXCLUDED``), plus the synthetic-scene generator args (the scene's content is not
+in the training config, only its folder). Two runs with the same hash are the same
+experiment, which is what resume relies on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from typing import Any
+
+from ftgspp.config import TrainConfig
+
+# Keys that never change what a run computes: output location, logging cadence,
+# thread count, tracking destination, caches.
+HASH_EXCLUDED = frozenset(
+    {
+        "out_dir",
+        "progress",
+        "resume",
+        "threads",
+        "log_every",
+        "checkpoint_every",
+        "tracking.uri",
+        "tracking.experiment",
+        "data.cache_dir",
+    }
+)
+
+
+def _flatten(prefix: str, value: Any, out: dict[str, str]) -> None:
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _flatten(f"{prefix}.{k}" if prefix else str(k), v, out)
+    elif isinstance(value, (list, tuple)):
+        out[prefix] = json.dumps(list(value))
+    elif value is None:
+        out[prefix] = "null"
+    else:
+        out[prefix] = json.dumps(value) if isinstance(value, bool) else str(value)
+
+
+def flatten_config(cfg: TrainConfig) -> dict[str, str]:
+    """Dotted keys of every option, values as strings (``lr.means -> '0.00016'``)."""
+    out: dict[str, str] = {}
+    _flatten("", dataclasses.asdict(cfg), out)
+    return out
+
+
+def config_hash(flat: dict[str, str], synth: dict[str, Any] | None = None) -> str:
+    """12 hex digits identifying the experiment (see module docstring)."""
+    items = {k: v for k, v in flat.items() if k not in HASH_EXCLUDED}
+    if synth:
+        items.update({f"synth.{k}": json.dumps(v, sort_keys=True) for k, v in synth.items()})
+    blob = json.dumps(sorted(items.items()), separators=(",", ":"))
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]

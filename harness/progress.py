@@ -1,0 +1,61 @@
+"""Study progress shared by the runs of one invocation, also across worker processes.
+
+Every finished run appends one JSON line to ``<sweep_dir>/progress.jsonl`` under a file
+lock and reads back how many runs are done, so each worker can print the study's
+progress and an ETA (wall time so far / runs done x runs left).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Progress:
+    done: int
+    failed: int
+    total: int
+    elapsed_s: float
+
+    @property
+    def eta_s(self) -> float:
+        if self.done == 0:
+            return float("nan")
+        return self.elapsed_s / self.done * (self.total - self.done)
+
+    def line(self) -> str:
+        eta = "?" if self.done == 0 else fmt_seconds(self.eta_s)
+        return (
+            f"study {self.done}/{self.total} runs done, {self.failed} failed, "
+            f"elapsed {fmt_seconds(self.elapsed_s)}, ETA {eta}"
+        )
+
+
+def fmt_seconds(seconds: float) -> str:
+    """``75 -> '1m15s'``, ``3700 -> '1h01m'``."""
+    s = int(round(seconds))
+    if s < 60:
+        return f"{s}s"
+    if s < 3600:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s // 3600}h{(s % 3600) // 60:02d}m"
+
+
+def record(path: Path, label: str, status: str, total: int, started_at: float) -> Progress:
+    """Append one finished run and return the study's progress."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            fh.write(json.dumps({"run": label, "status": status, "time": time.time()}) + "\n")
+            fh.flush()
+            fh.seek(0)
+            rows = [json.loads(line) for line in fh if line.strip()]
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+    failed = sum(r["status"] != "FINISHED" for r in rows)
+    return Progress(len(rows), failed, total, time.time() - started_at)

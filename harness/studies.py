@@ -1,0 +1,325 @@
+"""Study definitions: load ``studies/<name>.yaml`` and expand it into runs.
+
+A study file is plain data (see ``studies/secret5.yaml``): a question, named variants
+(lists of Hydra override strings, one of them the baseline), per-profile scenes, seed
+counts, overrides, expected runtime and the exact command, plus what the report shows.
+``expand()`` turns one (study, profile) into ``RunSpec``s, one per seed x scene x variant;
+run ``r`` uses seed ``base_seed + r``.
+
+Scenes are either synthetic (``synth: {preset, seed, layout, n_cameras, color_shift, ...}``:
+arguments of ``ftgspp.data.synthetic.generate``, generated on demand into
+``data/synth/<name>``) or given by overrides (``data.path=${oc.env:DYNERF_ROOT}/...``). A
+profile's ``scenes`` may also name a shared set in ``studies/_scene_sets.yaml``.
+The ``smoke`` profile is derived from ``quick`` when a study does not define one:
+``profile=smoke`` (at full resolution), one seed and tiny synthetic scenes (64x48 pixels,
+6 frames, 5 cameras).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ftgspp.errors import InputError
+
+STUDIES_DIR = Path(os.environ.get("FTGSPP_STUDIES", Path(__file__).resolve().parents[1] / "studies"))
+SCENE_SETS_FILE = "_scene_sets.yaml"
+PROFILES = ("quick", "paper", "smoke")
+TINY_SYNTH = {"width": 64, "height": 48, "n_frames": 6, "n_cameras": 5}
+SYNTH_ROOT = Path("data/synth")
+# the smoke scenes are generated at 64x48 already: train them at full resolution
+SMOKE_OVERRIDES = ("profile=smoke", "data.downsample=1")
+LAYOUTS = ("variants_x_scenes", "metrics_x_scenes", "variants_x_metrics")
+PLOTS = ("strip", "speed_accuracy", "stability")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One scene (or difficulty cell) of a profile."""
+
+    name: str
+    synth: dict[str, Any] | None = None  # generator args: preset, seed, layout, width, ...
+    overrides: tuple[str, ...] = ()  # e.g. data.path=..., lr.scale=3
+    label: str = ""  # human-readable column title (default: name)
+    synth_dir: str = ""  # where the synthetic scene lives, relative to the working directory
+
+    @property
+    def title(self) -> str:
+        return self.label or self.name
+
+    def data_overrides(self) -> list[str]:
+        """Overrides that select this scene's data and conditions."""
+        path = [f"data.path={self.synth_dir}"] if self.synth is not None else []
+        return path + list(self.overrides)
+
+
+@dataclass(frozen=True)
+class ProfileSpec:
+    """How a study runs under one profile (quick, paper, smoke)."""
+
+    name: str
+    seeds: int
+    overrides: tuple[str, ...]
+    scenes: tuple[SceneSpec, ...]
+    variants: dict[str, tuple[str, ...]]
+    expected_runtime: str = ""
+    command: str = ""
+    baseline: str = ""
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """Which tables the report writes."""
+
+    layout: str = "variants_x_scenes"
+    metrics: tuple[str, ...] = ("psnr",)  # fnmatch patterns (e.g. lpips_*)
+
+
+@dataclass(frozen=True)
+class StudySpec:
+    """A parsed study file."""
+
+    name: str
+    question: str
+    baseline: str  # default baseline variant; a profile may name its own
+    base_seed: int
+    metrics: tuple[str, ...]
+    table: TableSpec
+    plots: tuple[str, ...]
+    diagnostics: tuple[str, ...]
+    profiles: dict[str, ProfileSpec]
+    notes: str = ""
+    path: Path | None = None
+
+    def profile(self, name: str) -> ProfileSpec:
+        """The named profile, or an InputError listing the available ones."""
+        if name not in self.profiles:
+            raise InputError(f"--profile {name}", f"study '{self.name}' has profiles {sorted(self.profiles)}")
+        return self.profiles[name]
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One training run of a study: (variant, scene, seed) with its full override list."""
+
+    study: str
+    profile: str
+    variant: str
+    scene: SceneSpec
+    seed: int
+    overrides: tuple[str, ...]
+
+    @property
+    def key(self) -> tuple[str, str, int]:
+        return (self.variant, self.scene.name, self.seed)
+
+    @property
+    def label(self) -> str:
+        return f"{self.variant}/{self.scene.name}/seed{self.seed}"
+
+
+def list_studies(studies_dir: Path | None = None) -> list[str]:
+    """Names of the study files (``_*.yaml`` files are shared data, not studies)."""
+    root = Path(studies_dir or STUDIES_DIR)
+    return sorted(p.stem for p in root.glob("*.yaml") if not p.name.startswith("_"))
+
+
+def load_study(name: str, studies_dir: Path | None = None) -> StudySpec:
+    """Parse and validate ``studies/<name>.yaml``; unknown names raise InputError."""
+    root = Path(studies_dir or STUDIES_DIR)
+    path = root / f"{name}.yaml"
+    if name.startswith("_") or not _NAME.match(name) or not path.is_file():
+        known = ", ".join(list_studies(root)) or "none"
+        raise InputError(f"study '{name}'", f"unknown study (known: {known})")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise InputError(path, f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    return parse_study(raw, path, _scene_sets(root))
+
+
+def _scene_sets(root: Path) -> dict[str, Any]:
+    path = root / SCENE_SETS_FILE
+    return (yaml.safe_load(path.read_text()) or {}) if path.is_file() else {}
+
+
+def _require(cond: bool, where: str, problem: str) -> None:
+    if not cond:
+        raise InputError(where, problem)
+
+
+def _str_list(value: Any, where: str) -> tuple[str, ...]:
+    value = [] if value is None else value
+    _require(isinstance(value, list) and all(isinstance(v, str) for v in value), where, "must be a list of strings")
+    return tuple(value)
+
+
+def _parse_variants(raw: Any, where: str) -> dict[str, tuple[str, ...]]:
+    _require(isinstance(raw, dict) and raw, where, "must map variant names to override lists")
+    out = {}
+    for name, overrides in raw.items():
+        _require(isinstance(name, str) and bool(_NAME.match(name)), f"{where}.{name}", "bad variant name")
+        out[name] = _str_list(overrides, f"{where}.{name}")
+    return out
+
+
+def _parse_scene(raw: Any, where: str, profile: str) -> SceneSpec:
+    _require(isinstance(raw, dict) and "name" in raw, where, "a scene needs at least a name")
+    name = str(raw["name"])
+    _require(bool(_NAME.match(name)), where, f"bad scene name '{name}'")
+    synth = raw.get("synth")
+    _require(synth is None or isinstance(synth, dict), f"{where}.synth", "must be a mapping of generator args")
+    overrides = _str_list(raw.get("overrides"), f"{where}.overrides")
+    _require(synth is not None or bool(overrides), where, "needs synth args or data overrides")
+    synth_dir = ""
+    if synth is not None:
+        synth = {"preset": "studio", "seed": 0, "layout": "dynerf", **synth}
+        suffix = "-smoke" if profile == "smoke" else ""
+        synth_dir = (SYNTH_ROOT / f"{name}{suffix}").as_posix()
+    return SceneSpec(name, synth, overrides, str(raw.get("label", "")), synth_dir)
+
+
+def _parse_profile(name: str, raw: Any, where: str, variants: Any, sets: dict[str, Any]) -> ProfileSpec:
+    _require(isinstance(raw, dict), where, "must be a mapping")
+    scenes_raw = raw.get("scenes")
+    if isinstance(scenes_raw, str):
+        _require(scenes_raw in sets, f"{where}.scenes", f"unknown scene set '{scenes_raw}' ({SCENE_SETS_FILE})")
+        scenes_raw = sets[scenes_raw]
+    _require(isinstance(scenes_raw, list) and scenes_raw, f"{where}.scenes", "must be a non-empty list")
+    scenes = tuple(_parse_scene(s, f"{where}.scenes[{i}]", name) for i, s in enumerate(scenes_raw))
+    names = [s.name for s in scenes]
+    _require(len(set(names)) == len(names), f"{where}.scenes", "scene names must be unique")
+    seeds = raw.get("seeds", 1)
+    _require(isinstance(seeds, int) and seeds >= 1, f"{where}.seeds", "must be a positive integer")
+    prof_variants = _parse_variants(raw["variants"], f"{where}.variants") if "variants" in raw else variants
+    return ProfileSpec(
+        name=name,
+        seeds=seeds,
+        overrides=_str_list(raw.get("overrides"), f"{where}.overrides"),
+        scenes=scenes,
+        variants=prof_variants,
+        expected_runtime=str(raw.get("expected_runtime", "")),
+        command=str(raw.get("command", "")),
+        baseline=str(raw.get("baseline", "")),
+    )
+
+
+def _smoke_from_quick(quick: ProfileSpec, study: str) -> ProfileSpec:
+    scenes = []
+    for s in quick.scenes:
+        synth = dict(s.synth or {"preset": "studio", "seed": 0, "layout": "dynerf"})
+        tiny = dict(TINY_SYNTH)
+        if int(synth.get("n_cameras", 99)) < tiny["n_cameras"]:
+            tiny["n_cameras"] = int(synth["n_cameras"])
+        synth.update(tiny)
+        keep = tuple(o for o in s.overrides if not o.startswith("data.path="))
+        scenes.append(SceneSpec(s.name, synth, keep, s.label, (SYNTH_ROOT / f"{s.name}-smoke").as_posix()))
+    return ProfileSpec(
+        name="smoke",
+        seeds=1,
+        overrides=SMOKE_OVERRIDES,
+        scenes=tuple(scenes),
+        variants=quick.variants,
+        expected_runtime="seconds per run (tests only)",
+        command=f"study run {study} --profile smoke",
+        baseline=quick.baseline,
+    )
+
+
+def parse_study(raw: Any, path: Path, sets: dict[str, Any] | None = None) -> StudySpec:
+    """Validate the structure of a loaded study file (overrides are checked by composing)."""
+    where = str(path)
+    _require(isinstance(raw, dict), where, "a study file must be a mapping")
+    for key in ("name", "question", "baseline", "variants", "profiles"):
+        _require(key in raw, where, f"missing key '{key}'")
+    _require(raw["name"] == path.stem, where, f"name '{raw['name']}' must match the file name")
+    variants = _parse_variants(raw["variants"], f"{where}: variants")
+    profiles_raw = raw["profiles"]
+    _require(isinstance(profiles_raw, dict), f"{where}: profiles", "must be a mapping")
+    _require("quick" in profiles_raw and "paper" in profiles_raw, f"{where}: profiles", "needs quick and paper")
+    profiles: dict[str, ProfileSpec] = {}
+    for name, praw in profiles_raw.items():
+        _require(name in PROFILES, f"{where}: profiles.{name}", f"unknown profile (use {', '.join(PROFILES)})")
+        profiles[name] = _parse_profile(name, praw, f"{where}: profiles.{name}", variants, sets or {})
+    if "smoke" not in profiles:
+        profiles["smoke"] = _smoke_from_quick(profiles["quick"], raw["name"])
+    for name, p in profiles.items():
+        if not p.baseline:
+            profiles[name] = p = dataclasses.replace(p, baseline=raw["baseline"])
+        _require(p.baseline in p.variants, f"{where}: baseline", f"'{p.baseline}' is not a variant of {p.name}")
+    table_raw = raw.get("table") or {}
+    table = TableSpec(
+        layout=str(table_raw.get("layout", "variants_x_scenes")),
+        metrics=_str_list(table_raw.get("metrics", ["psnr"]), f"{where}: table.metrics"),
+    )
+    _require(table.layout in LAYOUTS, f"{where}: table.layout", f"must be one of {', '.join(LAYOUTS)}")
+    plots = _str_list(raw.get("plots"), f"{where}: plots")
+    for p in plots:
+        _require(p in PLOTS, f"{where}: plots", f"unknown plot '{p}' (use {', '.join(PLOTS)})")
+    base_seed = raw.get("base_seed", 0)
+    _require(isinstance(base_seed, int), f"{where}: base_seed", "must be an integer")
+    return StudySpec(
+        name=raw["name"],
+        question=" ".join(str(raw["question"]).split()),
+        baseline=raw["baseline"],
+        base_seed=base_seed,
+        metrics=_str_list(raw.get("metrics", ["psnr"]), f"{where}: metrics"),
+        table=table,
+        plots=plots,
+        diagnostics=_str_list(raw.get("diagnostics"), f"{where}: diagnostics"),
+        profiles=profiles,
+        notes=" ".join(str(raw.get("notes", "")).split()),
+        path=path,
+    )
+
+
+@dataclass
+class Selection:
+    """What one invocation asks for on top of the study file."""
+
+    profile: str = "quick"
+    seeds: int | None = None  # None: the profile's count
+    scenes: list[str] = field(default_factory=list)  # empty: all
+    variants: list[str] = field(default_factory=list)  # empty: all
+    overrides: list[str] = field(default_factory=list)  # appended to every run
+
+
+def _pick(requested: list[str], available: list[str], what: str) -> list[str]:
+    for name in requested:
+        _require(name in available, f"--{what}s {name}", f"unknown {what} (available: {', '.join(available)})")
+    return [a for a in available if not requested or a in requested]
+
+
+def expand(study: StudySpec, sel: Selection) -> list[RunSpec]:
+    """All runs of ``study`` for ``sel``: seed-major, then scene, then variant."""
+    prof = study.profile(sel.profile)
+    for o in sel.overrides:
+        _require("=" in o, f"override '{o}'", "expected key=value")
+        _require(not o.lstrip("+~").startswith("seed="), f"override '{o}'",
+                 "seeds come from --seeds and the study's base_seed")
+    variants = _pick(sel.variants, list(prof.variants), "variant")
+    scene_names = _pick(sel.scenes, [s.name for s in prof.scenes], "scene")
+    scenes = [s for s in prof.scenes if s.name in scene_names]
+    n_seeds = prof.seeds if sel.seeds is None else sel.seeds
+    _require(n_seeds >= 1, "--seeds", "must be at least 1")
+    runs = []
+    for r in range(n_seeds):
+        seed = study.base_seed + r
+        for scene in scenes:
+            for variant in variants:
+                overrides = (
+                    *prof.overrides,
+                    *scene.data_overrides(),
+                    *prof.variants[variant],
+                    *sel.overrides,
+                    f"seed={seed}",
+                )
+                runs.append(RunSpec(study.name, prof.name, variant, scene, seed, overrides))
+    return runs

@@ -1,0 +1,256 @@
+"""MLflow tracking: an explicit ``MlflowClient`` store and the trainer's ``Tracker``.
+
+``Store`` wraps one ``MlflowClient(tracking_uri)`` (never mlflow's global state). With
+the default embedded SQLite store (``sqlite:///mlflow.db``) several processes of one
+study write to the same file, so every write takes an inter-process lock
+(``<db>.lock``, ``fcntl.flock``) and is retried if SQLite still reports "database is
+locked" (another program, e.g. ``mlflow ui``, holding it). With an ``http(s)://``
+``mlflow server`` URI the client logs over HTTP and the server serialises.
+
+``MlflowTracker`` implements ``ftgspp.tracking.Tracker`` for one child run: params in
+batches of 100 (``log_batch``), step metrics buffered and flushed in batches, artifacts
+uploaded as they come.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import logging
+import math
+import os
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any, Callable, Iterator, TypeVar
+
+from ftgspp.errors import InputError
+
+DEFAULT_URI = "sqlite:///mlflow.db"
+PARAMS_PER_BATCH = 100  # MLflow's limit for params/tags per log_batch
+METRICS_PER_BATCH = 900  # below MLflow's 1000 entities per log_batch
+FLUSH_SECONDS = 10.0
+TAG_MAX_CHARS = 4_000
+T = TypeVar("T")
+
+
+def resolve_uri(explicit: str | None, configured: str) -> str:
+    """``tracking.uri=`` given on the command line, else ``MLFLOW_TRACKING_URI``, else the config.
+
+    A relative SQLite path is made absolute (MLflow caches stores by URI, and worker
+    processes must find the same file).
+    """
+    uri = explicit or os.environ.get("MLFLOW_TRACKING_URI") or configured or DEFAULT_URI
+    path = sqlite_path(uri)
+    return f"sqlite:///{path.resolve()}" if path is not None and not path.is_absolute() else uri
+
+
+def sqlite_path(uri: str) -> Path | None:
+    """The database file of a ``sqlite:///`` URI (relative to the working directory), else None."""
+    return Path(uri[len("sqlite:///") :]) if uri.startswith("sqlite:///") else None
+
+
+def store_exists(uri: str) -> bool:
+    """False only for a SQLite store whose file does not exist yet (reading must not create it)."""
+    path = sqlite_path(uri)
+    return path is None or path.is_file()
+
+
+def check_store(uri: str, timeout_s: float = 5.0) -> None:
+    """Fail with one clear line if the store cannot be used, before anything is written."""
+    path = sqlite_path(uri)
+    if path is not None:
+        folder = path.resolve().parent
+        if not folder.is_dir() or not os.access(folder, os.W_OK):
+            raise InputError("tracking.uri", f"{uri}: folder {folder} does not exist or is not writable")
+        return
+    if uri.startswith(("http://", "https://")):
+        try:
+            with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout_s) as resp:
+                if resp.status != 200:
+                    raise InputError("tracking.uri", f"{uri}: /health answered HTTP {resp.status}")
+        except (urllib.error.URLError, OSError) as exc:
+            reason = getattr(exc, "reason", exc)
+            raise InputError("tracking.uri", f"cannot reach an MLflow server at {uri} ({reason})") from None
+
+
+def _is_locked(exc: BaseException) -> bool:
+    text = str(exc).lower()
+    return "database is locked" in text or "database table is locked" in text
+
+
+class Store:
+    """One tracking store: a client plus the write lock and retry that SQLite needs."""
+
+    def __init__(self, uri: str, retry_s: float = 120.0) -> None:
+        from mlflow.tracking import MlflowClient
+
+        logging.getLogger("alembic").setLevel(logging.WARNING)
+        self.uri = uri
+        self.retry_s = retry_s
+        db = sqlite_path(uri)
+        self._lock_path = db.with_name(db.name + ".lock") if db is not None else None
+        if db is not None and not db.is_file():  # creating it runs migrations: one process at a time
+            with self._locked():
+                self.client = MlflowClient(tracking_uri=uri)
+                self.client.search_experiments(max_results=1)
+        else:
+            self.client = MlflowClient(tracking_uri=uri)
+
+    @contextlib.contextmanager
+    def _locked(self) -> Iterator[None]:
+        if self._lock_path is None:
+            yield
+            return
+        with open(self._lock_path, "a") as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(fh, fcntl.LOCK_UN)
+
+    def call(self, fn: Callable[..., T], *args: Any, write: bool = True, **kwargs: Any) -> T:
+        """``fn(*args, **kwargs)`` under the write lock, retried while SQLite is locked."""
+        deadline = time.monotonic() + self.retry_s
+        delay = 0.05
+        while True:
+            try:
+                if write:
+                    with self._locked():
+                        return fn(*args, **kwargs)
+                return fn(*args, **kwargs)
+            except Exception as exc:
+                if not _is_locked(exc) or time.monotonic() > deadline:
+                    raise
+                time.sleep(delay)
+                delay = min(delay * 2, 2.0)
+
+    # --- experiments and runs -------------------------------------------------------
+
+    def experiment_id(self, name: str, create: bool = True) -> str | None:
+        """Id of the experiment ``name``; created if missing and ``create``."""
+        exp = self.call(self.client.get_experiment_by_name, name, write=False)
+        if exp is not None:
+            return exp.experiment_id
+        return self.call(self.client.create_experiment, name) if create else None
+
+    def create_run(self, experiment_id: str, run_name: str, tags: dict[str, str]) -> str:
+        run = self.call(self.client.create_run, experiment_id, tags=tags, run_name=run_name)
+        return run.info.run_id
+
+    def search(self, experiment_id: str, filter_string: str = "") -> list[Any]:
+        """Every run of the experiment matching ``filter_string`` (all pages)."""
+        runs: list[Any] = []
+        token = None
+        while True:
+            page = self.call(
+                self.client.search_runs,
+                [experiment_id],
+                filter_string=filter_string,
+                max_results=1000,
+                page_token=token,
+                write=False,
+            )
+            runs.extend(page)
+            token = page.token
+            if not token:
+                return runs
+
+    def log_batch(
+        self,
+        run_id: str,
+        metrics: list[Any] = (),  # type: ignore[assignment]
+        params: dict[str, str] | None = None,
+        tags: dict[str, str] | None = None,
+    ) -> None:
+        """Log in chunks that respect MLflow's per-batch limits."""
+        from mlflow.entities import Param, RunTag
+
+        p_items = [Param(k, str(v)[:6000]) for k, v in (params or {}).items()]
+        t_items = [RunTag(k, str(v)[:TAG_MAX_CHARS]) for k, v in (tags or {}).items()]
+        for i in range(0, len(p_items), PARAMS_PER_BATCH):
+            self.call(self.client.log_batch, run_id, params=p_items[i : i + PARAMS_PER_BATCH])
+        for i in range(0, len(t_items), PARAMS_PER_BATCH):
+            self.call(self.client.log_batch, run_id, tags=t_items[i : i + PARAMS_PER_BATCH])
+        metrics = list(metrics)
+        for i in range(0, len(metrics), METRICS_PER_BATCH):
+            self.call(self.client.log_batch, run_id, metrics=metrics[i : i + METRICS_PER_BATCH])
+
+    def log_artifact(self, run_id: str, path: Path, artifact_path: str | None = None) -> None:
+        fn = self.client.log_artifacts if path.is_dir() else self.client.log_artifact
+        self.call(fn, run_id, str(path), artifact_path, write=False)
+
+    def terminate(self, run_id: str, status: str, tags: dict[str, str] | None = None) -> None:
+        """Set final tags and status (FINISHED, FAILED or KILLED)."""
+        if tags:
+            self.log_batch(run_id, tags=tags)
+        self.call(self.client.set_terminated, run_id, status)
+
+
+def metric_entities(metrics: dict[str, float], step: int) -> list[Any]:
+    """MLflow ``Metric`` entities for numeric values (non-numbers are dropped)."""
+    from mlflow.entities import Metric
+
+    now = int(time.time() * 1000)
+    out = []
+    for key, value in metrics.items():
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            continue
+        out.append(Metric(key, v if not math.isinf(v) else math.copysign(1.7976931348623157e308, v), now, step))
+    return out
+
+
+class MlflowTracker:
+    """``Tracker`` for one MLflow run; call ``flush()`` (or ``close()``) at the end."""
+
+    def __init__(self, store: Store, run_id: str, flush_seconds: float = FLUSH_SECONDS) -> None:
+        self.store = store
+        self.run_id = run_id
+        self.flush_seconds = flush_seconds
+        self.params: dict[str, str] = {}
+        self.logged_artifacts: set[Path] = set()
+        self.metric_keys: set[str] = set()
+        self._pending: list[Any] = []
+        self._last_flush = time.monotonic()
+
+    def log_params(self, params: dict[str, Any]) -> None:
+        """Log new params; a key already logged with another value goes in as ``trainer/<key>``."""
+        new: dict[str, str] = {}
+        for key, value in params.items():
+            text = str(value)
+            if key in self.params and self.params[key] != text:
+                key = f"trainer/{key}"
+            if self.params.get(key) != text:
+                new[key] = text
+        self.params.update(new)
+        if new:
+            self.store.log_batch(self.run_id, params=new)
+
+    def log_metrics(self, metrics: dict[str, float], step: int | None = None) -> None:
+        entities = metric_entities(metrics, 0 if step is None else int(step))
+        self.metric_keys.update(m.key for m in entities)
+        self._pending.extend(entities)
+        if len(self._pending) >= METRICS_PER_BATCH or time.monotonic() - self._last_flush > self.flush_seconds:
+            self.flush()
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        path = Path(path)
+        if not path.exists():
+            return
+        self.store.log_artifact(self.run_id, path, artifact_path)
+        self.logged_artifacts.add(path.resolve())
+
+    def set_tags(self, tags: dict[str, str]) -> None:
+        self.store.log_batch(self.run_id, tags={k: str(v) for k, v in tags.items()})
+
+    def flush(self) -> None:
+        """Write buffered metrics."""
+        pending, self._pending = self._pending, []
+        if pending:
+            self.store.log_batch(self.run_id, metrics=pending)
+        self._last_flush = time.monotonic()
+
+    close = flush

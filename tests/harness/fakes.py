@@ -1,0 +1,71 @@
+"""A fake trainer and scene generator for harness tests (no real training).
+
+``fake_train`` follows the trainer's contract (``train(cfg, scene, tracker) -> RunResult``
+as called through ``harness.train_app.run_training``): it logs a loss curve and a
+diagnostic PNG through the tracker and returns metrics that depend on the seed and the
+variant. ``init.velocity=flow`` without the gate raises ``InputError`` (an unimplemented
+feature), ``lr.scale >= 100`` diverges, and a file ``crash_seed<N>`` in the working directory makes
+the run with that seed crash once (the file is consumed). ``FAKE_TRAIN_SLEEP`` (seconds)
+makes every run take that long.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from pathlib import Path
+
+from ftgspp.config import TrainConfig
+from ftgspp.errors import InputError
+from ftgspp.tracking import RunResult, Tracker
+
+LOSS_STEPS = 40  # per-step loss values each run logs
+
+
+def fake_psnr(cfg: TrainConfig) -> float:
+    scene = 0.0 if "fast" not in cfg.data.path else -1.5
+    return 25.0 + scene + 0.5 * cfg.model.color_correction + 0.25 * cfg.seed + 0.01 * cfg.budget / 100 \
+        + 0.001 * cfg.iterations
+
+
+def fake_train(cfg: TrainConfig, out_dir: Path, tracker: Tracker) -> RunResult:
+    if cfg.init.velocity == "flow" and cfg.model.gate is False:
+        raise InputError("init.velocity", "flow-guided velocity is not implemented yet")
+    crash = Path(f"crash_seed{cfg.seed}")
+    if crash.exists():
+        crash.unlink()
+        raise RuntimeError(f"simulated crash of seed {cfg.seed}")
+    if cfg.lr.scale >= 100:
+        tracker.log_metrics({"loss": 1.0}, step=0)
+        tracker.log_metrics({"loss": math.nan}, step=1)
+        return RunResult("FAILED", {"train_seconds": 0.1}, failure="diverged", out_dir=out_dir)
+    time.sleep(float(os.environ.get("FAKE_TRAIN_SLEEP", "0")))
+    for step in range(LOSS_STEPS):
+        tracker.log_metrics({"loss": 1.0 / (step + 1), "l1": 0.5 / (step + 1)}, step=step)
+    diag = Path(out_dir) / "diagnostics" / "lifetime_hist.png"
+    diag.parent.mkdir(parents=True, exist_ok=True)
+    diag.write_bytes(b"\x89PNG\r\n\x1a\n fake")
+    tracker.log_artifact(diag, "diagnostics")
+    psnr = fake_psnr(cfg)
+    metrics = {
+        "psnr": psnr,
+        "ssim1": 0.9 + 0.001 * cfg.seed,
+        "ssim2": 0.95,
+        "dssim1": 0.05,
+        "dssim2": 0.025,
+        "lpips_alex": 0.2 - 0.001 * cfg.seed,
+        "lpips_alex_01": 0.18 - 0.001 * cfg.seed,
+        "train_seconds": 1.0 + cfg.iterations / 1000 + cfg.budget / 10_000,
+        "iters_per_second": 100.0,
+        "peak_rss_mb": 500.0,
+        "n_gaussians": float(cfg.budget),
+    }
+    return RunResult("FINISHED", metrics, out_dir=out_dir)
+
+
+def fake_generate(out: Path, layout: str, preset: str, seed: int, **extra: object) -> Path:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scene.txt").write_text(f"{layout} {preset} {seed} {sorted(extra.items())}")
+    return out

@@ -1,0 +1,106 @@
+"""The ``study`` command line: listing and one-line exit-2 errors that write nothing."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+
+from harness.cli import main
+from harness.records import load_runs, open_store
+
+
+def _err_lines(capsys: pytest.CaptureFixture[str]) -> list[str]:
+    return [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+
+
+def _store_is_untouched() -> None:
+    store = open_store(f"sqlite:///{Path('mlflow.db').resolve()}")
+    assert store is not None
+    assert store.experiment_id("ftgspp/toy", create=False) is None
+    assert load_runs(store, "ftgspp/toy", "toy") == []
+
+
+def test_list_names_every_study_with_run_counts(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("secret1", "secret5", "lpips", "ablation", "speed_accuracy", "stability"):
+        assert f"{name}: " in out
+    assert "quick:   15 runs = 3 variants x 1 scenes x 5 seeds" in out
+
+
+def test_unknown_study_is_one_line_exit_2_and_creates_no_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    for cmd in (["run", "nosuch"], ["status", "nosuch"], ["report", "nosuch"]):
+        with pytest.raises(SystemExit) as exc:
+            main(cmd)
+        assert exc.value.code == 2
+        lines = _err_lines(capsys)
+        assert len(lines) == 1 and "unknown study" in lines[0] and "secret5" in lines[0]
+    assert not (tmp_path / "mlflow.db").exists() and not (tmp_path / "reports").exists()
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--variants", "nope"], "unknown variant"),
+        (["--scenes", "nope"], "unknown scene"),
+        (["iterations=lots"], "iterations"),
+        (["model.nosuch=1"], "nosuch"),
+        (["model.gate=[1"], "malformed override"),
+        (["notanoverride"], "key=value"),
+        (["--seeds", "0"], "--seeds"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(args: list[str], words: str, workdir: Path, fakes_on: None,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "toy", *args])
+    assert exc.value.code == 2
+    lines = _err_lines(capsys)
+    assert len(lines) == 1 and words in lines[0], lines
+    _store_is_untouched()
+    assert not Path("outputs").exists() and not Path("data").exists()
+
+
+def test_unreachable_tracking_server_is_one_line_exit_2(workdir: Path, fakes_on: None,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "toy", f"tracking.uri=http://127.0.0.1:{port}"])
+    assert exc.value.code == 2
+    lines = _err_lines(capsys)
+    assert len(lines) == 1 and "cannot reach an MLflow server" in lines[0]
+    _store_is_untouched()
+
+
+def test_usage_errors_are_one_line_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    for argv in ([], ["frobnicate"], ["run"], ["run", "secret5", "--jobs", "two"]):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        assert len(_err_lines(capsys)) == 1
+
+
+def test_status_and_report_of_a_study_never_run_write_no_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               fakes_on: None, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    assert main(["status", "toy"]) == 0
+    assert "total: 0 done, 0 failed, 8 missing" in capsys.readouterr().out
+    assert main(["report", "toy"]) == 0
+    assert "8 missing" in (tmp_path / "reports" / "toy" / "index.md").read_text()
+    assert "MISSING" in (tmp_path / "reports" / "toy" / "runs.csv").read_text()
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_overrides_may_follow_options(monkeypatch: pytest.MonkeyPatch) -> None:
+    seen = {}
+    monkeypatch.setattr("harness.runner.run_study", lambda name, sel, jobs: seen.update(sel=sel, jobs=jobs))
+    assert main(["run", "secret5", "a=1", "--variants", "cc", "b=2", "--jobs", "2", "c=3"]) == 0
+    assert seen["sel"].overrides == ["a=1", "b=2", "c=3"] and seen["sel"].variants == ["cc"] and seen["jobs"] == 2

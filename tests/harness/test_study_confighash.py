@@ -1,0 +1,44 @@
+"""Config hashing: output and logging keys do not count; anything that changes results does."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ftgspp.config import TrainConfig
+from harness.confighash import HASH_EXCLUDED, config_hash, flatten_config
+
+
+def _hash(cfg: TrainConfig, synth: dict | None = None) -> str:
+    return config_hash(flatten_config(cfg), synth)
+
+
+def test_flatten_uses_dotted_keys_and_strings() -> None:
+    flat = flatten_config(TrainConfig())
+    assert flat["lr.means"] == "0.00016"
+    assert flat["model.gate"] == "false"
+    assert flat["model.max_duration"] == "null"
+    assert flat["data.test_cameras"] == '["cam00"]'
+    assert HASH_EXCLUDED <= set(flat), "every excluded key must exist in the schema"
+
+
+def test_hash_ignores_where_and_how_verbosely_a_run_writes() -> None:
+    base = TrainConfig()
+    other = dataclasses.replace(base, out_dir="/elsewhere", threads=7, log_every=3, progress=False)
+    other.tracking.uri = "http://127.0.0.1:5000"
+    assert _hash(base) == _hash(other)
+
+
+def test_hash_changes_with_results_relevant_keys_and_scene_content() -> None:
+    base = TrainConfig()
+    seen = {_hash(base)}
+    for change in (
+        dataclasses.replace(base, seed=1),
+        dataclasses.replace(base, iterations=10),
+        dataclasses.replace(base, model=dataclasses.replace(base.model, gate=True)),
+        dataclasses.replace(base, lr=dataclasses.replace(base.lr, scale=3.0)),
+    ):
+        seen.add(_hash(change))
+    seen.add(_hash(base, {"preset": "default", "seed": 0}))
+    seen.add(_hash(base, {"preset": "default", "seed": 1}))
+    assert len(seen) == 7
+    assert _hash(base) == _hash(TrainConfig()), "deterministic"

@@ -1,0 +1,105 @@
+"""Every study file loads, and every variant of every profile composes against the schema."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from ftgspp.errors import InputError
+from harness.plan import plan_runs
+from harness.studies import TINY_SYNTH, Selection, expand, list_studies, load_study, parse_study
+
+REQUIRED = {"secret1", "secret2", "secret3", "secret4", "secret5", "lpips", "ablation", "speed_accuracy", "stability"}
+
+
+def test_all_paper_studies_exist() -> None:
+    assert REQUIRED <= set(list_studies())
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_study_composes_in_every_profile(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("DYNERF_ROOT", "/data/n3v")
+    study = load_study(name)
+    assert study.question and study.baseline
+    assert {"quick", "paper", "smoke"} <= set(study.profiles)
+    for prof in study.profiles.values():
+        assert prof.baseline in prof.variants
+        if prof.name != "smoke":
+            assert prof.command.startswith(("study run", "DYNERF_ROOT")) and prof.expected_runtime
+        # one seed is enough: seeds only change the trailing seed= override
+        planned = plan_runs(expand(study, Selection(profile=prof.name, seeds=1)))
+        assert len(planned) == len(prof.variants) * len(prof.scenes)
+        assert len({p.config_hash for p in planned}) == len(planned), "two runs of a study must differ"
+        for p in planned:
+            assert p.params["profile"] == prof.name
+    assert 6 <= study.profiles["paper"].seeds <= 10
+    smoke = study.profiles["smoke"]
+    assert smoke.seeds == 1
+    for scene in smoke.scenes:
+        assert scene.synth is not None and scene.synth_dir.endswith("-smoke")
+        for k in ("width", "height", "n_frames"):
+            assert scene.synth[k] == TINY_SYNTH[k]
+
+
+def test_quick_profiles_use_synthetic_scenes_only() -> None:
+    for name in REQUIRED:
+        for scene in load_study(name).profiles["quick"].scenes:
+            assert scene.synth is not None, f"{name}: quick scene {scene.name} must be synthetic"
+
+
+def test_runs_use_seed_base_plus_r_and_put_overrides_in_order() -> None:
+    study = load_study("secret5")
+    runs = expand(study, Selection(profile="quick", seeds=3, variants=["cc"], overrides=["iterations=7"]))
+    assert [r.seed for r in runs] == [study.base_seed + r for r in range(3)]
+    o = list(runs[0].overrides)
+    assert o[0] == "profile=quick" and o[-1] == f"seed={study.base_seed}"
+    assert o.index("model.color_correction=true") < o.index("iterations=7")
+    assert "data.path=data/synth/studio" in o
+
+
+def test_fast_composition_matches_full_hydra_compose() -> None:
+    from harness.confighash import flatten_config
+    from harness.schema import compose, to_train_config
+
+    study = load_study("stability")
+    runs = expand(study, Selection(profile="quick", seeds=1, scenes=["lr_x10"]))
+    for run, planned in zip(runs, plan_runs(runs)):
+        full = flatten_config(to_train_config(compose(list(run.overrides))))
+        assert full == planned.params
+
+
+def test_unknown_names_are_input_errors() -> None:
+    with pytest.raises(InputError, match="unknown study"):
+        load_study("secret42")
+    study = load_study("secret5")
+    with pytest.raises(InputError, match="unknown variant"):
+        expand(study, Selection(variants=["nope"]))
+    with pytest.raises(InputError, match="unknown scene"):
+        expand(study, Selection(scenes=["nope"]))
+    with pytest.raises(InputError, match="profiles"):
+        expand(study, Selection(profile="huge"))
+    with pytest.raises(InputError, match="seeds come from"):
+        expand(study, Selection(overrides=["seed=3"]))
+
+
+def test_bad_override_values_name_the_key(monkeypatch: pytest.MonkeyPatch) -> None:
+    study = load_study("secret4")
+    for bad, word in (("iterations=many", "iterations"), ("nosuchkey=1", "nosuchkey"), ("model.gate=[1", "model.gate")):
+        with pytest.raises(InputError, match=word):
+            plan_runs(expand(study, Selection(profile="smoke", overrides=[bad])))
+    monkeypatch.delenv("DYNERF_ROOT", raising=False)
+    with pytest.raises(InputError, match="DYNERF_ROOT"):
+        plan_runs(expand(study, Selection(profile="paper", seeds=1)))
+
+
+def test_study_file_validation(tmp_path: Path) -> None:
+    raw = yaml.safe_load((Path(__file__).parent / "studies" / "toy.yaml").read_text())
+    raw["baseline"] = "missing"
+    with pytest.raises(InputError, match="baseline"):
+        parse_study(raw, tmp_path / "toy.yaml")
+    raw = yaml.safe_load((Path(__file__).parent / "studies" / "toy.yaml").read_text())
+    raw["plots"] = ["pie"]
+    with pytest.raises(InputError, match="unknown plot"):
+        parse_study(raw, tmp_path / "toy.yaml")
