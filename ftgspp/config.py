@@ -130,6 +130,7 @@ class TrainConfig:
     log_every: int = 50
     checkpoint_every: int = 1_000
     eval_every: int = 0  # 0 = only at the end
+    diagnostics: bool = True  # lifetime / velocity / x-t / motion-error plots after evaluation
     out_dir: str = "."
     resume: bool = True
     progress: bool = True

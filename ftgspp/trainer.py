@@ -173,11 +173,36 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
         np.save(out_dir / "color_correction.npy", cc.matrices().cpu().numpy())
         np.save(out_dir / "color_bias.npy", cc.bias.detach().cpu().numpy())
     torch.save({k: v.detach().cpu() for k, v in model.params.items()}, out_dir / "gaussians.pt")
+    if cfg.diagnostics:
+        diag_metrics, diag_files = _diagnostics(model, scene, cfg, out_dir / "diagnostics")
+        metrics.update(diag_metrics)
+    else:
+        diag_files = []
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
     tracker.log_metrics(metrics)
     for a in artifacts:
         tracker.log_artifact(a, "renders")
+    for a in diag_files:
+        tracker.log_artifact(a, "diagnostics")
     return RunResult(status="FINISHED", metrics=metrics, out_dir=out_dir, artifacts=artifacts)
+
+
+def _diagnostics(model, scene, cfg, out_dir: Path) -> tuple[dict[str, float], list[Path]]:
+    """Diagnostic plots of the trained model and the numbers studies tabulate."""
+    from ftgspp.diagnostics import run_diagnostics
+
+    d = run_diagnostics(model, scene, cfg, out_dir)
+    life = d.get("lifetime", {})
+    numbers = {
+        "lifetime_long_on_static": life.get("long_lived_on_static"),
+        "lifetime_short_on_dynamic": life.get("short_lived_on_dynamic"),
+        "lifetime_median_fraction": life.get("median_fraction"),
+        "motion_epe_dynamic": d.get("motion", {}).get("epe_dynamic"),
+        "motion_leak_static": d.get("motion", {}).get("leak_static"),
+        "xt_slice_mae": d.get("xt_slice_mae"),
+    }
+    files = [Path(f) for f in d.get("files", {}).values()] + [out_dir / "diagnostics.json"]
+    return {k: float(v) for k, v in numbers.items() if v is not None}, files
 
 
 def _loop(cfg, scene, model, cc, optimizers, schedulers, relocator, state, sampler, reloc_gen,

@@ -49,6 +49,9 @@ def test_training_improves_over_initialisation(tiny_scene_dir, tiny_scene, tmp_p
     saved = json.loads((tmp_path / "b" / "metrics.json").read_text())
     assert saved["psnr"] == pytest.approx(after.metrics["psnr"])
     assert list((tmp_path / "b" / "renders").glob("*.png"))
+    # diagnostics run after evaluation; the synthetic scene has ground-truth motion
+    assert (tmp_path / "b" / "diagnostics" / "lifetime_histogram.png").exists()
+    assert "motion_epe_dynamic" in after.metrics and "lifetime_long_on_static" in after.metrics
 
 
 def test_same_seed_gives_bit_identical_parameters(tiny_scene_dir, tiny_scene, tmp_path):
