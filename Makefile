@@ -6,7 +6,7 @@ PIP    := $(PY) -m pip
 SCENE  ?= data/synth/studio
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test weights bench clean
+.PHONY: install demo train-quick test weights bench clean
 
 # torch 2.13.0 (CPU) goes in first, alone, so nothing later pulls a multi-GB CUDA build.
 $(STAMP): pyproject.toml
@@ -22,10 +22,18 @@ install: $(STAMP)
 weights: install
 	$(VENV)/bin/ftgspp weights fetch
 
+# The main job: secret 5 (run-to-run variation, colour correction) on the synthetic studio
+# scene, 2 variants x 5 seeds, tracked in ./mlflow.db, then its report. Re-running resumes.
 demo: install
-	$(VENV)/bin/ftgspp synth --out $(SCENE) --preset studio --seed 0
-	$(VENV)/bin/ftgspp train profile=quick data.path=$(SCENE) hydra.run.dir=outputs/demo
-	@echo "results: outputs/demo (metrics.json, renders/)"
+	$(VENV)/bin/study run secret5 --profile quick
+	$(VENV)/bin/study report secret5
+	@echo "report: reports/secret5/index.md"
+	@echo "browse the runs: $(VENV)/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db"
+
+# One training run of the quick profile (the issue-2 demo).
+train-quick: install
+	test -d $(SCENE) || $(VENV)/bin/ftgspp synth --out $(SCENE) --preset studio --seed 0
+	$(VENV)/bin/ftgspp train profile=quick data.path=$(SCENE) hydra.run.dir=outputs/train-quick
 
 test: install weights
 	$(VENV)/bin/python -m pytest -q

@@ -1,0 +1,408 @@
+"""``ftgspp bench``: timings of the rasterization backends, measured in one process.
+
+    ftgspp bench render [--n 5000] [--width 128 --height 96] [--repeats 10] [--json]
+    python -m ftgspp.bench render --n 20000 --width 256 --height 192
+
+``bench render`` builds one random scene of 3D Gaussians in front of a camera, projects it
+once (``ftgspp.render.project``), and times the 2D rasterization of every available backend
+(``reference``, ``cpu``, and ``gsplat`` on CUDA) on the same projected Gaussians: forward,
+and forward + backward (gradients of all rasterizer inputs for fixed random cotangents).
+Backends alternate within each repeat; figures are medians after warm-up. A fixed
+yardstick -- dense PyTorch compositing of every Gaussian-pixel pair, chunked over pixels so
+memory stays bounded -- is timed too, so that speed-ups stay comparable when the reference
+backend changes. Numba compile time of the ``cpu`` kernels is measured cold (a subprocess
+with an empty ``NUMBA_CACHE_DIR``) and cached (a second subprocess reusing it).
+
+Wall-clock figures depend on the machine and on what else runs on it; compare ratios
+measured in one run. ``bench train`` is reserved for whole training iterations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from ftgspp.render import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
+
+Rasterize = Callable[..., "tuple[Tensor, Tensor, Tensor]"]
+
+
+# ----------------------------------------------------------------------------- scene
+
+
+def random_scene(n: int, width: int, height: int, seed: int = 0) -> dict[str, Any]:
+    """``n`` random 3D Gaussians filling the view of a pinhole camera at the origin.
+
+    Centres are uniform in screen space (10% margin) at depths 2..10; each axis has a
+    screen-space standard deviation log-uniform in [0.5, 3] px; opacities uniform in
+    [0.05, 1]; RGB colours uniform. Returns the 3D parameters plus ``viewmat`` and ``K``.
+    """
+    g = torch.Generator().manual_seed(seed)
+    focal = 1.2 * width
+    K = torch.tensor([[focal, 0.0, (width - 1) / 2], [0.0, focal, (height - 1) / 2], [0.0, 0.0, 1.0]])
+    z = 2.0 + 8.0 * torch.rand(n, generator=g)
+    u = (torch.rand(n, generator=g) * 1.2 - 0.1) * width
+    v = (torch.rand(n, generator=g) * 1.2 - 0.1) * height
+    means = torch.stack([(u - K[0, 2]) * z / focal, (v - K[1, 2]) * z / focal, z], dim=-1)
+    sigma_px = torch.exp(math.log(0.5) + math.log(6.0) * torch.rand(n, 3, generator=g))
+    return dict(
+        means=means,  # [N, 3]
+        quats=torch.randn(n, 4, generator=g),  # [N, 4]
+        scales=sigma_px * z.unsqueeze(-1) / focal,  # [N, 3]
+        opacities=0.05 + 0.95 * torch.rand(n, generator=g),  # [N]
+        colors=torch.rand(n, 3, generator=g),  # [N, 3]
+        viewmat=torch.eye(4),
+        K=K,
+        width=width,
+        height=height,
+    )
+
+
+def project_scene(scene: dict[str, Any]) -> dict[str, Any]:
+    """The rasterizer inputs of ``scene`` (detached): means2d, conics, colors, ..., radii."""
+    from ftgspp.render.project import project
+
+    with torch.no_grad():
+        means2d, conics, depths, radii, _ = project(
+            scene["means"], scene["quats"], scene["scales"], scene["viewmat"], scene["K"],
+            scene["width"], scene["height"],
+        )  # fmt: skip
+    return dict(
+        means2d=means2d, conics=conics, colors=scene["colors"], opacities=scene["opacities"],
+        depths=depths, radii=radii, width=scene["width"], height=scene["height"],
+        background=torch.full((scene["colors"].shape[1],), 0.5),
+    )  # fmt: skip
+
+
+# -------------------------------------------------------------------------- yardstick
+
+
+def dense_rasterize(
+    means2d: Tensor,  # [N, 2]
+    conics: Tensor,  # [N, 3]
+    colors: Tensor,  # [N, D]
+    opacities: Tensor,  # [N]
+    depths: Tensor,  # [N]
+    radii: Tensor,  # [N]
+    width: int,
+    height: int,
+    background: Tensor | None = None,  # [D]
+    grads: tuple[Tensor, Tensor, Tensor] | None = None,  # cotangents of image, alpha, depth
+    chunk_pairs: int = 1 << 23,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The yardstick: the rasterizer contract evaluated densely on every Gaussian-pixel pair.
+
+    Pixels are processed in chunks of about ``chunk_pairs / N`` pixels. With ``grads``, each
+    chunk is differentiated right away (``backward`` of <outputs, cotangents>), so gradients
+    accumulate in the leaves' ``.grad`` and memory stays bounded. Returns detached outputs.
+    """
+    n = colors.shape[0]
+    tiles_x, tiles_y = -(-width // TILE_SIZE), -(-height // TILE_SIZE)
+    order = torch.sort(depths.detach(), stable=True).indices  # [N] front to back
+    with torch.no_grad():
+        r = radii.to(means2d.dtype)[order]
+        x, y = means2d.detach()[order].unbind(-1)
+        tx0 = torch.floor((x - r) / TILE_SIZE).clamp(0, tiles_x)
+        tx1 = torch.where(r > 0, torch.floor((x + r + TILE_SIZE - 1) / TILE_SIZE).clamp(0, tiles_x), tx0)
+        ty0 = torch.floor((y - r) / TILE_SIZE).clamp(0, tiles_y)
+        ty1 = torch.floor((y + r + TILE_SIZE - 1) / TILE_SIZE).clamp(0, tiles_y)
+    pix = torch.arange(width * height)
+    outs: list[list[Tensor]] = [[], [], []]
+    step = max(1, chunk_pairs // max(n, 1))
+    for start in range(0, width * height, step):
+        p = pix[start : start + step]  # [P]
+        px, py = (p % width).to(means2d.dtype), (p // width).to(means2d.dtype)
+        with torch.no_grad():
+            tx, ty = (px // TILE_SIZE).unsqueeze(-1), (py // TILE_SIZE).unsqueeze(-1)  # [P, 1]
+            in_tile = (tx >= tx0) & (tx < tx1) & (ty >= ty0) & (ty < ty1)  # [P, N]
+        mean, conic = means2d[order], conics[order]
+        dx = px.unsqueeze(-1) - mean[:, 0]  # [P, N]
+        dy = py.unsqueeze(-1) - mean[:, 1]
+        power = -0.5 * conic[:, 0] * dx * dx + -0.5 * conic[:, 2] * dy * dy - conic[:, 1] * dy * dx
+        alpha = torch.clamp(opacities[order] * torch.exp(torch.clamp(power, max=0.0)), max=ALPHA_MAX)
+        with torch.no_grad():
+            keep = in_tile & (power <= 0) & (alpha >= ALPHA_MIN)
+        alpha = torch.where(keep, alpha, 0.0)
+        trans = torch.cumprod(1.0 - alpha, dim=-1)  # [P, N] T after each Gaussian
+        with torch.no_grad():
+            alive = trans >= T_MIN  # a prefix: T never increases
+        alpha = torch.where(alive, alpha, 0.0)
+        trans = torch.cumprod(1.0 - alpha, dim=-1)
+        t_before = torch.cat([torch.ones_like(trans[:, :1]), trans[:, :-1]], dim=-1)
+        weights = alpha * t_before  # [P, N]
+        t_final = trans[:, -1:]  # [P, 1]
+        image = weights @ colors[order]  # [P, D]
+        if background is not None:
+            image = image + t_final * background
+        depth = weights @ depths[order].unsqueeze(-1)  # [P, 1]
+        chunk = (image, 1.0 - t_final, depth)
+        if grads is not None:
+            cot = [g.reshape(width * height, -1)[start : start + step] for g in grads]
+            torch.autograd.backward(chunk, cot)
+        for acc, t in zip(outs, chunk):
+            acc.append(t.detach())
+    image, alpha, depth = (torch.cat(o).reshape(height, width, -1) for o in outs)
+    return image, alpha, depth
+
+
+# --------------------------------------------------------------------------- backends
+
+
+GRAD_INPUTS = ("means2d", "conics", "colors", "opacities", "depths", "background")
+
+
+def available_backends() -> dict[str, Rasterize]:
+    """Rasterize functions of the backends usable here (contract signature)."""
+    backends: dict[str, Rasterize] = {}
+    from ftgspp.render.reference import rasterize as reference
+
+    backends["reference"] = reference
+    try:
+        from ftgspp.render.cpu import rasterize as cpu
+
+        backends["cpu"] = cpu
+    except ImportError:
+        pass
+    if torch.cuda.is_available():
+        try:
+            import gsplat  # noqa: F401
+
+            backends["gsplat"] = _gsplat_rasterize
+        except ImportError:
+            pass
+    return backends
+
+
+def _gsplat_rasterize(means2d, conics, colors, opacities, depths, radii, width, height, background=None):
+    """Contract-shaped adapter over gsplat's 2D tile rasterizer (CUDA; pixel centres +0.5).
+
+    Not exercised where no GPU is available.
+    """
+    from gsplat import isect_offset_encode, isect_tiles, rasterize_to_pixels
+
+    dev = torch.device("cuda")
+    m2d = (means2d.to(dev) + 0.5).unsqueeze(0)  # [1, N, 2]
+    rad = radii.to(dev).int()
+    tiles_w, tiles_h = -(-width // TILE_SIZE), -(-height // TILE_SIZE)
+    try:
+        _, isect_ids, flatten_ids = isect_tiles(m2d, rad.unsqueeze(0), depths.to(dev).unsqueeze(0), TILE_SIZE,
+                                                tiles_w, tiles_h)  # fmt: skip
+    except (RuntimeError, TypeError):  # gsplat >= 1.5 wants per-axis radii [C, N, 2]
+        rad2 = torch.stack([rad, rad], -1).unsqueeze(0)
+        _, isect_ids, flatten_ids = isect_tiles(m2d, rad2, depths.to(dev).unsqueeze(0), TILE_SIZE, tiles_w, tiles_h)
+    offsets = isect_offset_encode(isect_ids, 1, tiles_w, tiles_h)
+    feats = torch.cat([colors.to(dev), depths.to(dev).unsqueeze(-1)], -1).unsqueeze(0)  # [1, N, D + 1]
+    bg = None
+    if background is not None:
+        bg = torch.cat([background.to(dev), background.new_zeros(1).to(dev)]).unsqueeze(0)
+    out, alpha = rasterize_to_pixels(m2d, conics.to(dev).unsqueeze(0), feats, opacities.to(dev).unsqueeze(0),
+                                     width, height, TILE_SIZE, offsets, flatten_ids, backgrounds=bg)  # fmt: skip
+    return out[0, ..., :-1], alpha[0], out[0, ..., -1:]
+
+
+def _sync() -> None:
+    if torch.cuda.is_available():
+        torch.cuda.synchronize()
+
+
+def time_backend(fn: Rasterize, inputs: dict[str, Any], cotangents: tuple[Tensor, ...]) -> tuple[float, float]:
+    """One forward and one forward + backward of ``fn``, in milliseconds."""
+    leaves = {k: inputs[k].clone().requires_grad_(True) for k in GRAD_INPUTS}
+    args = [leaves[k] for k in GRAD_INPUTS[:5]]
+    extra = (inputs["radii"], inputs["width"], inputs["height"], leaves["background"])
+    _sync()
+    t0 = time.perf_counter()
+    fn(*args, *extra)
+    _sync()
+    t1 = time.perf_counter()
+    outputs = fn(*args, *extra)
+    torch.autograd.backward(outputs, [c.to(outputs[0].device) for c in cotangents])
+    _sync()
+    t2 = time.perf_counter()
+    return 1e3 * (t1 - t0), 1e3 * (t2 - t1)
+
+
+def time_yardstick(inputs: dict[str, Any], cotangents: tuple[Tensor, ...]) -> tuple[float, float]:
+    """Dense compositing with autograd: forward and forward + backward, in milliseconds."""
+    leaves = {k: inputs[k].clone().requires_grad_(True) for k in GRAD_INPUTS}
+    args = [leaves[k] for k in GRAD_INPUTS[:5]] + [inputs["radii"], inputs["width"], inputs["height"]]
+    t0 = time.perf_counter()
+    dense_rasterize(*args, leaves["background"])  # records each chunk's graph, then drops it
+    t1 = time.perf_counter()
+    dense_rasterize(*args, leaves["background"], grads=cotangents)
+    t2 = time.perf_counter()
+    return 1e3 * (t1 - t0), 1e3 * (t2 - t1)
+
+
+# ----------------------------------------------------------------------- compile time
+
+_COMPILE_SNIPPET = """
+import time, torch
+from ftgspp.render import cpu
+m = torch.tensor([[8.0, 8.0], [20.0, 9.0]], requires_grad=True)
+args = (m, torch.tensor([[0.1, 0.0, 0.1]] * 2), torch.rand(2, 3), torch.rand(2), torch.ones(2))
+t0 = time.perf_counter()
+out = cpu.rasterize(*args, torch.tensor([6, 6]), 32, 24)
+sum(o.sum() for o in out).backward()
+print(time.perf_counter() - t0)
+"""
+
+
+def numba_compile_seconds() -> dict[str, float | None]:
+    """First-call time of the cpu kernels: cold (empty Numba cache) and cached, in seconds."""
+    result: dict[str, float | None] = {"cold": None, "cached": None}
+    with tempfile.TemporaryDirectory(prefix="ftgspp-numba-") as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        for key in ("cold", "cached"):
+            proc = subprocess.run([sys.executable, "-c", _COMPILE_SNIPPET], env=env, capture_output=True, text=True)
+            if proc.returncode != 0:
+                print(f"warning: compile-time probe failed: {proc.stderr.strip()[-300:]}", file=sys.stderr)
+                break
+            result[key] = float(proc.stdout.strip().splitlines()[-1])
+    return result
+
+
+# ------------------------------------------------------------------------------ render
+
+
+def bench_render(
+    n: int = 5000,
+    width: int = 128,
+    height: int = 96,
+    repeats: int = 10,
+    warmup: int = 2,
+    yardstick_repeats: int = 1,
+    compile_times: bool = True,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Median forward / forward+backward milliseconds of every backend and the yardstick."""
+    load_before = os.getloadavg()[0]
+    inputs = project_scene(random_scene(n, width, height, seed))
+    g = torch.Generator().manual_seed(seed + 1)
+    n_dim = inputs["colors"].shape[1]
+    cotangents = (
+        torch.randn(height, width, n_dim, generator=g),
+        torch.randn(height, width, 1, generator=g),
+        torch.randn(height, width, 1, generator=g),
+    )
+    backends = available_backends()
+    names = list(backends)
+    for _ in range(warmup):
+        for name in names:
+            time_backend(backends[name], inputs, cotangents)
+    samples: dict[str, list[tuple[float, float]]] = {name: [] for name in names}
+    for r in range(repeats):
+        for name in names[r % len(names) :] + names[: r % len(names)]:  # alternate the order
+            samples[name].append(time_backend(backends[name], inputs, cotangents))
+    result: dict[str, Any] = {"backends": {}}
+    for name in names:
+        fwd, fwd_bwd = zip(*samples[name])
+        result["backends"][name] = {"fwd_ms": statistics.median(fwd), "fwd_bwd_ms": statistics.median(fwd_bwd)}
+    if yardstick_repeats > 0:
+        dense = [time_yardstick(inputs, cotangents) for _ in range(yardstick_repeats)]
+        fwd, fwd_bwd = zip(*dense)
+        yard = {"fwd_ms": statistics.median(fwd), "fwd_bwd_ms": statistics.median(fwd_bwd)}
+        result["yardstick"] = yard
+        result["ratios"] = {
+            name: {
+                "fwd": yard["fwd_ms"] / t["fwd_ms"],
+                "fwd_bwd": yard["fwd_bwd_ms"] / t["fwd_bwd_ms"],
+            }
+            for name, t in result["backends"].items()
+        }  # speed-up over the dense yardstick (x)
+    else:
+        result["yardstick"], result["ratios"] = None, {}
+    result.update(
+        n=n,
+        n_visible=int((inputs["radii"] > 0).sum()),
+        width=width,
+        height=height,
+        repeats=repeats,
+        torch_threads=torch.get_num_threads(),
+        cpu_count=os.cpu_count(),
+        load_average=[load_before, os.getloadavg()[0]],  # 1-minute load before and after (ours included)
+    )
+    if "cpu" in backends:
+        from ftgspp.render import cpu
+
+        result["numba_threading_layer"] = cpu.threading_layer()
+        result["numba_threads"] = __import__("numba").get_num_threads()
+    result["numba_compile_s"] = numba_compile_seconds() if compile_times else {"cold": None, "cached": None}
+    return result
+
+
+def format_render_table(result: dict[str, Any]) -> str:
+    """Human-readable table of a ``bench_render`` result."""
+    lines = [
+        f"render: {result['n']} Gaussians ({result['n_visible']} visible), "
+        f"{result['width']}x{result['height']}, median of {result['repeats']}",
+        f"{'backend':<11}{'fwd_ms':>12}{'fwd_bwd_ms':>13}{'x yardstick fwd':>17}{'x yardstick fwd+bwd':>21}",
+    ]
+    rows = dict(result["backends"])
+    if result.get("yardstick"):
+        rows["yardstick"] = result["yardstick"]
+    for name, t in rows.items():
+        ratio = result["ratios"].get(name, {"fwd": 1.0, "fwd_bwd": 1.0} if name == "yardstick" else None)
+        rf = f"{ratio['fwd']:.1f}" if ratio else "-"
+        rb = f"{ratio['fwd_bwd']:.1f}" if ratio else "-"
+        lines.append(f"{name:<11}{t['fwd_ms']:>12.2f}{t['fwd_bwd_ms']:>13.2f}{rf:>17}{rb:>21}")
+    compile_s = result["numba_compile_s"]
+    if compile_s.get("cold") is not None:
+        lines.append(f"numba compile: cold {compile_s['cold']:.1f} s, cached {compile_s['cached']:.2f} s")
+    if "numba_threading_layer" in result:
+        lines.append(f"numba: {result['numba_threads']} threads, layer {result['numba_threading_layer']}")
+    if result["load_average"][0] > 0.5 * (result["cpu_count"] or 1):
+        lines.append(
+            f"warning: the machine was busy before the run (1-min load {result['load_average'][0]:.1f} on "
+            f"{result['cpu_count']} cores); timings, multi-threaded ones most, are inflated"
+        )
+    return "\n".join(lines)
+
+
+# -------------------------------------------------------------------------------- cli
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ftgspp bench", description="Time rasterization and training.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    render = sub.add_parser("render", help="forward / forward+backward of every rasterization backend")
+    render.add_argument("--n", type=int, default=5000, help="number of 3D Gaussians")
+    render.add_argument("--width", type=int, default=128)
+    render.add_argument("--height", type=int, default=96)
+    render.add_argument("--repeats", type=int, default=10, help="timed repeats per backend (median)")
+    render.add_argument("--warmup", type=int, default=2)
+    render.add_argument("--yardstick-repeats", type=int, default=1, help="0 skips the dense yardstick")
+    render.add_argument("--no-compile-times", action="store_true", help="skip the Numba compile probe")
+    render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
+    # ``bench train`` (a whole training iteration) is added by the trainer; see issue 3.
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``ftgspp bench``. Returns the exit status."""
+    args = build_parser().parse_args(argv)
+    if args.command == "render":
+        result = bench_render(
+            n=args.n, width=args.width, height=args.height, repeats=args.repeats, warmup=args.warmup,
+            yardstick_repeats=args.yardstick_repeats, compile_times=not args.no_compile_times, seed=args.seed,
+        )  # fmt: skip
+        print(json.dumps(result) if args.json else format_render_table(result))
+        return 0
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
