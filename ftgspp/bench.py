@@ -14,7 +14,7 @@ backend changes. Numba compile time of the ``cpu`` kernels is measured cold (a s
 with an empty ``NUMBA_CACHE_DIR``) and cached (a second subprocess reusing it).
 
 Wall-clock figures depend on the machine and on what else runs on it; compare ratios
-measured in one run. ``bench train`` is reserved for whole training iterations.
+measured in one run. ``bench train`` (``bench_train.py``) times whole training iterations.
 """
 
 from __future__ import annotations
@@ -387,7 +387,14 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--no-compile-times", action="store_true", help="skip the Numba compile probe")
     render.add_argument("--seed", type=int, default=0)
     render.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
-    # ``bench train`` (a whole training iteration) is added by the trainer; see issue 3.
+    train = sub.add_parser("train", help="whole training iterations of every backend (ftgspp/bench_train.py)")
+    train.add_argument("--iterations", type=int, default=200)
+    train.add_argument("--budget", type=int, default=5000, help="number of Gaussians")
+    train.add_argument("--repeats", type=int, default=2)
+    train.add_argument("--width", type=int, default=128)
+    train.add_argument("--height", type=int, default=96)
+    train.add_argument("--backends", default="", help="comma-separated (default: every available one)")
+    train.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
     return parser
 
 
@@ -400,6 +407,14 @@ def main(argv: list[str] | None = None) -> int:
             yardstick_repeats=args.yardstick_repeats, compile_times=not args.no_compile_times, seed=args.seed,
         )  # fmt: skip
         print(json.dumps(result) if args.json else format_render_table(result))
+        return 0
+    if args.command == "train":
+        from ftgspp.bench_train import bench_train, format_train_table
+
+        result = bench_train(iterations=args.iterations, budget=args.budget, repeats=args.repeats,
+                             width=args.width, height=args.height,
+                             backends=[b for b in args.backends.split(",") if b] or None)
+        print(json.dumps(result) if args.json else format_train_table(result))
         return 0
     return 2
 

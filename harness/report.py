@@ -300,7 +300,7 @@ def write_index(data: ReportData, out: Path, tabs: list[tables.Table], figures: 
                   "Logged by the runs under the `diagnostics/` artifact path (lowest finished seed).", ""]
         for v, s, seed, paths in diags:
             lines += [f"### {v} / {s} (seed {seed})", ""]
-            lines += [f"![{p.name}]({p.relative_to(out).as_posix()})" for p in paths] + [""]
+            lines += [_embed(p, out) for p in paths] + [""]
     lines += [
         "## Config hashes",
         "",
@@ -348,3 +348,11 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
     echo(f"{name}: report of {c['n_runs']} runs ({c['n_finished']} finished, {c['n_failed']} failed,"
          f" {c['n_missing'] + c['n_running']} missing) written to {out / 'index.md'}")
     return out / "index.md"
+
+
+def _embed(path: Path, root: Path) -> str:
+    """Markdown for one diagnostic file: images inline, anything else (JSON numbers) as a link."""
+    rel = path.relative_to(root).as_posix()
+    if path.suffix.lower() in {".png", ".jpg", ".jpeg", ".svg"}:
+        return f"![{path.name}]({rel})"
+    return f"[{path.name}]({rel})"
