@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import logging
+from contextlib import contextmanager
 
 import cv2
 import numpy as np
@@ -23,6 +24,22 @@ from ftgspp.model import FreeTimeGaussians
 from ftgspp.view import render_view
 
 log = logging.getLogger("ftgspp.evaluate")
+
+
+@contextmanager
+def one_torch_thread():
+    """Run torch on one CPU thread inside the block.
+
+    Convolutions (SSIM windows, LPIPS networks) sum in a thread-count dependent order, so
+    the same images could score differently in the 8th decimal under ``study run --jobs 2``
+    than under ``--jobs 1``. One thread makes every metric bit-identical across both.
+    """
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def lpips_models(device: torch.device) -> dict | None:
@@ -60,7 +77,8 @@ def evaluate(
             out, _ = render_view(model, cam, float(scene.times[f]), cfg.model.sh_degree, background, cfg.backend)
             pred = out.image.clamp(0, 1)
             gt = torch.from_numpy(scene.image(cam_idx, f)).to(device)
-            rows.append(evaluate_images(pred, gt, lpips=lpips))
+            with one_torch_thread():  # metrics independent of how many workers share the machine
+                rows.append(evaluate_images(pred, gt, lpips=lpips))
             if f in saved:
                 path = render_dir / f"{cam.name}_{f:04d}.png"
                 _save_pair(path, gt.cpu().numpy(), pred.cpu().numpy())
