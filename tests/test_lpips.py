@@ -20,7 +20,8 @@ from ftgspp.lpips import LPIPS, WEIGHT_FILES, WeightsError, fetch, load_lpips, m
 from ftgspp.lpips import weights as weights_mod
 from ftgspp.lpips.weights import flax_to_torch, safe_load_numpy_pickle
 from ftgspp.metrics import evaluate_images, lpips_distance, read_image
-from conftest import LPIPS_REF_DIR
+
+LPIPS_REF_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "lpips_ref"
 
 
 @pytest.fixture(scope="module")

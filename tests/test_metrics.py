@@ -30,7 +30,8 @@ from ftgspp.metrics import (
     ssim,
     ssim_same,
 )
-from conftest import LPIPS_REF_DIR
+
+LPIPS_REF_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "lpips_ref"
 
 BASE_KEYS = ["psnr", "ssim1", "ssim2", "dssim1", "dssim2"]
 LPIPS_KEYS = ["lpips_alex", "lpips_vgg", "lpips_alex_01", "lpips_vgg_01"]
