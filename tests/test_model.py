@@ -41,7 +41,7 @@ def test_temporal_activation_is_gaussian_in_time(max_duration):
     torch.testing.assert_close(m.at_time(t).opacities, m.base_opacity() * a)
     # at the temporal centre a(t) = 1
     for i in range(4):
-        assert m.temporal_opacity(float(m.params["times"][i])).detach()[i].item() == pytest.approx(1.0, abs=1e-6)
+        assert m.temporal_opacity(m.params["times"][i].item()).detach()[i].item() == pytest.approx(1.0, abs=1e-6)
 
 
 def test_bounded_duration_never_exceeds_max():
