@@ -93,6 +93,21 @@ def _order(data: ReportData) -> tuple[list[str], list[str]]:
     return variants, scenes
 
 
+# Paired per-run differences between conventions, tabulated by the metrics_x_scenes layout.
+CONVENTION_GAPS = {
+    "gap_lpips_alex": ("lpips_alex_01", "lpips_alex"),
+    "gap_lpips_vgg": ("lpips_vgg_01", "lpips_vgg"),
+    "gap_ssim": ("ssim2", "ssim1"),
+    "gap_dssim": ("dssim2", "dssim1"),
+}
+
+
+def convention_gaps(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` with a ``gap_*`` column per convention pair both of whose metrics it has (per run)."""
+    return df.assign(**{g: df[a] - df[b] for g, (a, b) in CONVENTION_GAPS.items()
+                        if a in df.columns and b in df.columns})
+
+
 def _table_metrics(data: ReportData) -> list[str]:
     found = aggregate.match_metrics(data.study.table.metrics, aggregate.metric_columns(data.df))
     literal = [m for m in data.study.table.metrics if not any(ch in m for ch in "*?[")]
@@ -108,7 +123,14 @@ def build_tables(data: ReportData) -> tuple[list[tables.Table], dict[str, pd.Dat
     labels = _labels(data)
     layout = data.study.table.layout
     if layout == "metrics_x_scenes":
-        return [tables.metrics_x_scenes(summaries, baseline, scenes, labels, data.study.name)], summaries
+        gap_df = convention_gaps(data.df)
+        gaps = {g: aggregate.summarize(gap_df, g, baseline) for g in CONVENTION_GAPS if g in gap_df.columns}
+        tabs = [tables.metrics_x_scenes(summaries, baseline, scenes, labels, data.study.name)]
+        if gaps:
+            gap_table = tables.metrics_x_scenes(gaps, baseline, scenes, labels, f"{data.study.name}-gaps")
+            gap_table.title = f"Convention gaps, paired per run ({baseline}): same renders, other convention"
+            tabs.append(gap_table)
+        return tabs, {**summaries, **gaps}
     if layout == "variants_x_metrics":
         scene = aggregate.AVERAGE if len(scenes) > 1 else scenes[0]
         return [tables.variants_x_metrics(summaries, variants, scene, data.study.name)], summaries

@@ -25,18 +25,22 @@ PRETTY = {"psnr": "PSNR", "ssim1": "SSIM (data range 1)", "ssim2": "SSIM (data r
           "lpips_alex_01": "LPIPS-Alex ([0,1] input, 3DGS convention)",
           "lpips_vgg_01": "LPIPS-VGG ([0,1] input, 3DGS convention)",
           "train_seconds": "train time (s)", "iters_per_second": "iterations/s",
-          "peak_rss_mb": "peak RSS (MB)", "n_gaussians": "#Gaussians"}
+          "peak_rss_mb": "peak RSS (MB)", "n_gaussians": "#Gaussians",
+          "gap_lpips_alex": "LPIPS-Alex: [0,1] − [-1,1] input", "gap_lpips_vgg": "LPIPS-VGG: [0,1] − [-1,1] input",
+          "gap_ssim": "SSIM: data range 2 − 1", "gap_dssim": "DSSIM: data range 2 − 1"}
 
 
 def decimals(metric: str) -> int:
     if metric in DECIMALS:
         return DECIMALS[metric]
-    if metric.startswith(("ssim", "dssim", "lpips")):
+    if metric.startswith(("ssim", "dssim", "lpips", "gap_")):
         return 4
     return 3
 
 
 def pretty(metric: str) -> str:
+    if metric.startswith("gap_"):  # a difference between conventions: no better direction
+        return PRETTY.get(metric, metric)
     arrow = "↓" if lower_is_better(metric) else "↑"
     return f"{PRETTY.get(metric, metric)} {arrow}"
 

@@ -98,3 +98,19 @@ def test_speed_accuracy_and_stability_tables() -> None:
     assert st.loc[("cc", "s1"), "failure_rate"] == pytest.approx(0.25)
     assert st.loc[("cc", "s1"), "n_diverged"] == 1
     assert st.loc[("base", "s1"), "spread"] == pytest.approx(30.4 - 29.8)
+
+
+def test_convention_gaps_are_paired_per_run_differences() -> None:
+    from harness.report import convention_gaps
+
+    runs = pd.DataFrame({"variant": ["baseline"] * 3, "scene": ["s"] * 3, "seed": [0, 1, 2],
+                         "status": ["FINISHED"] * 3, "failure": [""] * 3,
+                         "lpips_alex": [0.10, 0.20, 0.30], "lpips_alex_01": [0.08, 0.19, 0.25],
+                         "ssim1": [0.80, 0.85, 0.90], "ssim2": [0.86, 0.90, 0.93]})
+    gaps = convention_gaps(runs)
+    np.testing.assert_allclose(gaps["gap_lpips_alex"], [-0.02, -0.01, -0.05])
+    np.testing.assert_allclose(gaps["gap_ssim"], [0.06, 0.05, 0.03])
+    assert "gap_lpips_vgg" not in gaps  # only pairs whose two metrics exist
+    row = summarize(gaps, "gap_lpips_alex", "baseline").query("scene == 's'").iloc[0]
+    assert row["mean"] == pytest.approx(np.mean([-0.02, -0.01, -0.05]))
+    assert row["std"] == pytest.approx(np.std([-0.02, -0.01, -0.05], ddof=1))
