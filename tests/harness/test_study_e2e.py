@@ -36,3 +36,26 @@ def test_secret5_smoke_run_report_and_resume(workdir: Path, capsys: pytest.Captu
     for name in ("index.md", "table.md", "table.tex", "strip_psnr.png"):
         assert (report / name).is_file(), name
     assert "| baseline |" in (report / "table.md").read_text()
+
+
+# One non-baseline variant of every study (so the gate, flow init, colour correction,
+# relocation policies, budget/iteration grids and difficulty cells all run), smoke profile.
+SMOKE_VARIANT = {
+    "secret1": "max_duration1", "secret2": None, "secret3": None, "secret4": "partial_copy",
+    "lpips": "baseline", "ablation": None, "stability": None, "speed_accuracy": None,
+}
+
+
+@pytest.mark.parametrize("study", sorted(SMOKE_VARIANT))
+def test_every_study_runs_and_reports_at_smoke_scale(study: str, workdir: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    from harness.studies import load_study
+
+    spec = load_study(study).profile("smoke")
+    variant = SMOKE_VARIANT[study] or list(spec.variants)[-1]  # the most complete variant
+    scene = spec.scenes[0].name
+    assert main(["run", study, "--profile", "smoke", "--variants", variant, "--scenes", scene]) == 0
+    out = capsys.readouterr().out
+    assert "0 failed" in out, out[-2000:]
+    assert main(["report", study]) == 0
+    assert (Path("reports") / study / "table.md").is_file()
