@@ -45,7 +45,11 @@ EXTENT_SCALED = ("means", "velocities")
 
 
 class Diverged(Exception):
-    """The loss became NaN or Inf."""
+    """The loss became NaN or Inf at iteration ``step`` after ``seconds`` of training."""
+
+    def __init__(self, step: int, seconds: float, loss: float) -> None:
+        super().__init__(f"loss is {loss} at iteration {step}")
+        self.step, self.seconds = step, seconds
 
 
 def pick_device(name: str) -> torch.device:
@@ -159,18 +163,17 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     except Diverged as exc:
         log.warning("diverged: %s", exc)
         return RunResult(status="FAILED", failure="diverged", out_dir=out_dir,
-                         metrics={"train_seconds": elapsed, "diverged_at": float(str(exc).split()[-1])})
+                         metrics={"train_seconds": exc.seconds, "diverged_at": float(exc.step)})
 
+    if start >= cfg.iterations:
+        log.info("run already complete; evaluation only")
     metrics, artifacts = evaluate(model, scene, cfg, out_dir)
-    done_iters = cfg.iterations - start
     metrics.update({
         "train_seconds": elapsed,
         "iters_per_second": cfg.iterations / elapsed if elapsed > 0 else float("nan"),
         "peak_rss_mb": _peak_rss_mb(),
         "n_gaussians": float(len(model)),
     })
-    if done_iters == 0:
-        log.info("run already complete; evaluation only")
     if cc is not None:
         np.save(out_dir / "color_correction.npy", cc.matrices().cpu().numpy())
         np.save(out_dir / "color_bias.npy", cc.bias.detach().cpu().numpy())
@@ -247,7 +250,7 @@ def _loop(cfg, scene, model, cc, optimizers, schedulers, relocator, state, sampl
         if use_cc:
             loss = loss + cfg.model.cc_reg * cc.regularizer()
         if not torch.isfinite(loss):
-            raise Diverged(f"loss is {loss.item()} at iteration {step}")
+            raise Diverged(step, time.perf_counter() - t0, loss.item())
         loss.backward()
 
         if out.means2d.grad is not None:

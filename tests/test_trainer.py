@@ -108,6 +108,7 @@ def test_divergence_is_reported_not_raised(tiny_scene_dir, tiny_scene, tmp_path,
     monkeypatch.setattr(trainer, "photometric", poisoned)
     result = train(small_cfg(tiny_scene_dir, tmp_path), tiny_scene)
     assert result.status == "FAILED" and result.failure == "diverged"
+    assert result.metrics["diverged_at"] == 1.0 and result.metrics["train_seconds"] > 0
 
 
 def test_color_correction_is_identity_at_start_and_absent_from_evaluation(tiny_scene_dir, tiny_scene, tmp_path):
