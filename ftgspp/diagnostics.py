@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,13 +52,7 @@ ALPHA_MIN = 0.5  # composited quantities are trusted where alpha > this
 def effective_lifetimes(model: FreeTimeGaussians, theta: float) -> torch.Tensor:
     """Effective lifetime Δt(θ) in seconds, ``[N]`` (``inf`` for gated Gaussians that never fade)."""
     with torch.no_grad():
-        if not model.cfg.gate:
-            return model.lifetimes(theta)
-        o, g, s = model.base_opacity(), model.gate(), model.temporal_scale()
-        a_star = (theta / o - g) / (1.0 - g).clamp_min(1e-12)
-        life = 2.0 * s * torch.sqrt(2.0 * torch.log(1.0 / a_star.clamp(min=1e-30, max=1.0)))
-        life = torch.where(a_star >= 1.0, torch.zeros_like(life), life)
-        return torch.where(a_star <= 0.0, torch.full_like(life, math.inf), life)
+        return model.lifetimes(theta)
 
 
 def lifetime_fractions(model: FreeTimeGaussians, theta: float, duration: float) -> np.ndarray:

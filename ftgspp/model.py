@@ -121,10 +121,21 @@ class FreeTimeGaussians(nn.Module):
         )
 
     def lifetimes(self, threshold: float) -> torch.Tensor:
-        """Effective lifetime Δt(θ) = 2 s √(2 log(o/θ)) for o > θ, else 0, in seconds, ``[N]``."""
-        o = self.base_opacity()
-        ratio = torch.clamp(o / threshold, min=1.0)
-        return 2.0 * self.temporal_scale() * torch.sqrt(2.0 * torch.log(ratio))
+        """Effective lifetime: how long o·φ(t) stays ≥ θ, in seconds, ``[N]``.
+
+        Without the gate, Δt(θ) = 2 s √(2 log(o/θ)) for o > θ, else 0. With it, o·φ(t) = θ
+        where a(t) = a* = (θ/o − g)/(1 − g): Δt = 2 s √(2 log(1/a*)), 0 when a* ≥ 1, and
+        ``inf`` when a* ≤ 0 (o·g ≥ θ: the Gaussian never fades).
+        """
+        o, s = self.base_opacity(), self.temporal_scale()
+        if not self.cfg.gate:
+            ratio = torch.clamp(o / threshold, min=1.0)
+            return 2.0 * s * torch.sqrt(2.0 * torch.log(ratio))
+        g = self.gate()
+        a_star = (threshold / o - g) / (1.0 - g).clamp_min(1e-12)
+        life = 2.0 * s * torch.sqrt(2.0 * torch.log(1.0 / a_star.clamp(min=1e-30, max=1.0)))
+        life = torch.where(a_star >= 1.0, torch.zeros_like(life), life)
+        return torch.where(a_star <= 0.0, torch.full_like(life, math.inf), life)
 
 
 def duration_to_param(duration: float, max_duration: float | None) -> float:
