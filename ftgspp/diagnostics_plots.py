@@ -16,7 +16,7 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from ftgspp.diagnostics import color_wheel, flow_to_rgb  # noqa: E402
+from ftgspp.diagnostics_colors import color_wheel, flow_to_rgb  # noqa: E402
 
 DPI = 120
 
