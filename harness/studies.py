@@ -10,6 +10,8 @@ Scenes are either synthetic (``synth: {preset, seed, layout, n_cameras, color_sh
 arguments of ``ftgspp.data.synthetic.generate``, generated on demand into
 ``data/synth/<name>``) or given by overrides (``data.path=${oc.env:DYNERF_ROOT}/...``). A
 profile's ``scenes`` may also name a shared set in ``studies/_scene_sets.yaml``.
+A study may list ``claims:`` (the paper's statements as data, see ``ClaimSpec``);
+``harness.claims`` tests them and ``study report`` gives each a verdict.
 The ``smoke`` profile is derived from ``quick`` when a study does not define one:
 ``profile=smoke`` (at full resolution), one seed and tiny synthetic scenes (64x48 pixels,
 6 frames, 5 cameras).
@@ -38,6 +40,19 @@ SMOKE_OVERRIDES = ("profile=smoke", "data.downsample=1")
 LAYOUTS = ("variants_x_scenes", "metrics_x_scenes", "variants_x_metrics")
 PLOTS = ("strip", "speed_accuracy", "stability")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+# claims: test kinds, the expectations each allows, and the metrics a claim may name
+CLAIM_TESTS = {"mean": ("higher", "lower"), "variance": ("higher", "lower"),
+               "interaction": ("higher", "lower"), "correlation": ("weak",)}
+CLAIM_METRICS = (
+    "psnr", "ssim1", "ssim2", "dssim1", "dssim2", "lpips_alex", "lpips_vgg", "lpips_alex_01", "lpips_vgg_01",
+    "train_seconds", "iters_per_second", "peak_rss_mb", "n_gaussians",
+    # diagnostics (ftgspp.diagnostics via the trainer) and the report's per-run convention gaps
+    "lifetime_long_on_static", "lifetime_short_on_dynamic", "lifetime_median_fraction",
+    "lifetime_partition_contrast", "lifetime_short_share_dynamic", "lifetime_short_share_static",
+    "motion_epe_dynamic", "motion_leak_static", "motion_role_switch", "xt_slice_mae",
+    "flicker_static", "flicker_static_excess",
+    "gap_lpips_alex", "gap_lpips_vgg", "gap_ssim", "gap_dssim",
+)
 
 
 @dataclass(frozen=True)
@@ -83,6 +98,33 @@ class TableSpec:
 
 
 @dataclass(frozen=True)
+class ClaimSpec:
+    """One statement of the paper, as a test on the study's runs (``harness.claims``).
+
+    ``test``: ``mean`` (variant ``a`` against ``b``, or against zero when ``b`` is empty),
+    ``variance`` (spread of ``a`` against ``b``), ``interaction`` (the ``a`` − ``b`` difference
+    on ``scenes[0]`` against the one on ``scenes[1]``) or ``correlation`` (``metric`` against
+    ``versus`` over every run: ``weak`` means |r| < ``threshold``). ``expect`` is the
+    direction of the first quantity relative to the second (``higher`` / ``lower``).
+    ``scenes``: the scenes pooled (empty: every scene with runs). ``pair``: ``seed`` pairs
+    runs of ``a`` and ``b`` that share (scene, seed); ``none`` compares them unpaired (Welch).
+    """
+
+    id: str
+    statement: str
+    metric: str
+    test: str
+    expect: str
+    a: str = ""
+    b: str = ""
+    scenes: tuple[str, ...] = ()
+    pair: str = "seed"
+    versus: str = ""
+    threshold: float = 0.5
+    paper_number: str | None = None
+
+
+@dataclass(frozen=True)
 class StudySpec:
     """A parsed study file."""
 
@@ -97,6 +139,7 @@ class StudySpec:
     profiles: dict[str, ProfileSpec]
     notes: str = ""
     path: Path | None = None
+    claims: tuple[ClaimSpec, ...] = ()
 
     def profile(self, name: str) -> ProfileSpec:
         """The named profile, or an InputError listing the available ones."""
@@ -265,6 +308,8 @@ def parse_study(raw: Any, path: Path, sets: dict[str, Any] | None = None) -> Stu
         _require(p in PLOTS, f"{where}: plots", f"unknown plot '{p}' (use {', '.join(PLOTS)})")
     base_seed = raw.get("base_seed", 0)
     _require(isinstance(base_seed, int), f"{where}: base_seed", "must be an integer")
+    all_variants = {v for p in profiles.values() for v in p.variants}
+    claims = _parse_claims(raw.get("claims"), f"{where}: claims", all_variants)
     return StudySpec(
         name=raw["name"],
         question=" ".join(str(raw["question"]).split()),
@@ -277,7 +322,59 @@ def parse_study(raw: Any, path: Path, sets: dict[str, Any] | None = None) -> Stu
         profiles=profiles,
         notes=" ".join(str(raw.get("notes", "")).split()),
         path=path,
+        claims=claims,
     )
+
+
+_CLAIM_KEYS = {"id", "claim", "paper_number", "metric", "test", "expect", "a", "b", "scenes", "pair", "versus",
+               "threshold"}
+
+
+def _parse_claims(raw: Any, where: str, variants: set[str]) -> tuple[ClaimSpec, ...]:
+    """Validate a study's ``claims:`` list (variants: those of any profile)."""
+    if raw is None:
+        return ()
+    _require(isinstance(raw, list), where, "must be a list of claims")
+    out: list[ClaimSpec] = []
+    for i, c in enumerate(raw):
+        at = f"{where}[{i}]"
+        _require(isinstance(c, dict), at, "a claim must be a mapping")
+        unknown = sorted(set(c) - _CLAIM_KEYS)
+        _require(not unknown, at, f"unknown key(s) {', '.join(unknown)} (use {', '.join(sorted(_CLAIM_KEYS))})")
+        for key in ("id", "claim", "metric", "test", "expect"):
+            _require(key in c, at, f"missing key '{key}'")
+        cid, test, expect = str(c["id"]), str(c["test"]), str(c["expect"])
+        at = f"{where}.{cid}"
+        _require(bool(_NAME.match(cid)) and cid not in {o.id for o in out}, at, "claim ids must be unique names")
+        _require(test in CLAIM_TESTS, f"{at}.test", f"unknown comparison '{test}' (use {', '.join(CLAIM_TESTS)})")
+        _require(expect in CLAIM_TESTS[test], f"{at}.expect",
+                 f"'{expect}' is not an expectation of a {test} test (use {', '.join(CLAIM_TESTS[test])})")
+        for key in ("metric", "versus"):
+            if key in c or key == "metric":
+                _require(c[key] in CLAIM_METRICS, f"{at}.{key}",
+                         f"unknown metric '{c[key]}' (use {', '.join(CLAIM_METRICS)})")
+        a, b = str(c.get("a") or ""), str(c.get("b") or "")
+        for key, v in (("a", a), ("b", b)):
+            _require(not v or v in variants, f"{at}.{key}", f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
+        scenes = _str_list(c.get("scenes"), f"{at}.scenes")
+        pair = str(c.get("pair", "seed"))
+        _require(pair in ("seed", "none"), f"{at}.pair", "must be 'seed' or 'none'")
+        if test == "correlation":
+            _require("versus" in c, at, "a correlation claim needs 'versus' (the second metric)")
+        else:
+            _require(bool(a), f"{at}.a", f"a {test} claim needs variant 'a'")
+            _require(bool(b) or test == "mean", f"{at}.b", f"a {test} claim needs variant 'b'")
+        if test == "interaction":
+            _require(len(scenes) == 2, f"{at}.scenes", "an interaction needs exactly two scenes")
+        threshold = c.get("threshold", 0.5)
+        _require(isinstance(threshold, (int, float)) and 0 < threshold < 1, f"{at}.threshold", "must be in (0, 1)")
+        number = c.get("paper_number")
+        out.append(ClaimSpec(
+            id=cid, statement=" ".join(str(c["claim"]).split()), metric=str(c["metric"]), test=test,
+            expect=expect, a=a, b=b, scenes=scenes, pair=pair, versus=str(c.get("versus", "")),
+            threshold=float(threshold), paper_number=None if number is None else str(number),
+        ))  # fmt: skip
+    return tuple(out)
 
 
 @dataclass
