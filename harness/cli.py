@@ -2,14 +2,17 @@
 
     study list
     study run NAME [--profile quick|paper|smoke] [--seeds N] [--scenes A,B] [--variants A,B]
-                   [--jobs N] [key=value overrides ...]
+                   [--jobs N] [--launcher basic|joblib|local|slurm] [--lease SECONDS]
+                   [key=value overrides ...]
     study status NAME [same selection options]
     study report NAME [same selection options] [--out DIR]
 
 Studies live in ``studies/NAME.yaml``. Runs are tracked in MLflow (``sqlite:///mlflow.db``
 in the working directory unless ``MLFLOW_TRACKING_URI`` or ``tracking.uri=`` says
 otherwise); ``status`` and ``report`` without selection options use the latest ``run``
-invocation of the study. Bad input (unknown study, variant or scene, bad override,
+invocation of the study. Several ``study run`` invocations (nodes, array jobs, a second
+one by hand) may share one tracking server: each run is claimed with a lease first
+(``harness.lease``), and ``status`` lists the runs in progress with their host and age. Bad input (unknown study, variant or scene, bad override,
 unreachable tracking store) prints one line and exits 2 before anything is written.
 """
 
@@ -20,6 +23,7 @@ import sys
 from pathlib import Path
 
 from ftgspp.errors import InputError, exit_on_input_error
+from harness.launchers import LAUNCHERS
 from harness.studies import PROFILES, Selection
 
 
@@ -52,6 +56,11 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run the missing or failed runs of a study")
     _selection_args(run)
     run.add_argument("--jobs", type=int, default=1, help="parallel runs (Hydra joblib launcher); default 1")
+    run.add_argument("--launcher", choices=LAUNCHERS, default="basic",
+                     help="basic (default), joblib, local (submitit) or slurm (submitit; conf/hydra/launcher/slurm.yaml)")
+    run.add_argument("--lease", type=float, default=None, metavar="SECONDS",
+                     help="a claimed run is taken over after this long without a heartbeat"
+                          " (default $FTGSPP_LEASE_S or 300)")
     status = sub.add_parser("status", help="done / failed / missing runs per variant, scene and seed")
     _selection_args(status)
     report = sub.add_parser("report", help="tables and plots into reports/NAME/")
@@ -105,8 +114,27 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(f"  {v:{width}s}  {s:{swidth}s}  {done:4d}  {len(failed):6d}  {len(missing):7d}  {'; '.join(detail)}")
     done = int((df.status == "FINISHED").sum())
     failed = int(df.status.isin(["FAILED", "KILLED"]).sum())
-    print(f"total: {done} done, {failed} failed, {len(df) - done - failed} missing")
+    running = _print_running(data.uri, data.experiment, args.name)
+    print(f"total: {done} done, {failed} failed, {len(df) - done - failed} missing"
+          + (f" (of which {running} running)" if running else ""))
     return 0
+
+
+def _print_running(uri: str, experiment: str, study: str) -> int:
+    """List the study's RUNNING child runs with their host, age and lease state."""
+    import time
+
+    from harness import lease
+    from harness.records import load_runs, open_store
+
+    now = time.time()
+    runs = [r for r in load_runs(open_store(uri), experiment, study) if r.status == "RUNNING"]
+    for rec in runs:
+        state = "live" if lease.is_live(rec, now=now) else "stale: the next `study run` takes it over"
+        age = now - rec.start_time / 1000.0
+        print(f"  running: {rec.tags.get('mlflow.runName', rec.run_id)} on {rec.tags.get(lease.OWNER, 'unknown host')},"
+              f" started {age:.0f}s ago, heartbeat {lease.heartbeat_age(rec, now):.0f}s ago ({state})")
+    return len(runs)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -124,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "run":
             from harness.runner import run_study
 
-            run_study(args.name, _selection(args, required=True), jobs=args.jobs)
+            run_study(args.name, _selection(args, required=True), jobs=args.jobs, launcher=args.launcher,
+                      lease_s=args.lease)
             return 0
         if args.command == "status":
             return cmd_status(args)

@@ -1,9 +1,10 @@
 """Launch a list of jobs through Hydra's launcher plugins.
 
 Each job is a list of override strings for ``conf/train.yaml``. Hydra's plugin machinery
-instantiates the launcher named by ``hydra/launcher``: the basic launcher (in-process,
-one job after another) by default, the joblib launcher (``loky`` worker processes) for
-``jobs > 1``. The launcher composes each job's config in full, creates its output folder
+instantiates the launcher named by ``hydra/launcher`` (``harness.launchers``): the basic
+launcher (in-process, one job after another) by default, the joblib launcher (``loky``
+worker processes) for ``jobs > 1``, submitit's local or SLURM executor. The launcher
+composes each job's config in full, creates its output folder
 ``<sweep_dir>/<job subdir>`` with ``.hydra/{config,overrides}.yaml`` and calls
 ``task(cfg)``; ``hydra.core.hydra_config.HydraConfig.get()`` inside the task gives the
 job's number and output folder. Exceptions the task lets through come back in the
@@ -17,19 +18,10 @@ from typing import Any, Callable, Sequence
 
 from omegaconf import DictConfig
 
+from harness.launchers import launcher_overrides
 from harness.schema import CONF_DIR, register
 
 TaskFunction = Callable[[DictConfig], Any]
-
-
-def launcher_overrides(sweep_dir: Path, jobs: int, job_name: str) -> list[str]:
-    """Hydra-level overrides selecting the launcher and where jobs write."""
-    overrides = [f"hydra.sweep.dir={sweep_dir.as_posix()}", f"hydra.job.name={job_name}"]
-    if jobs > 1:
-        overrides += ["hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}"]
-    else:
-        overrides += ["hydra/launcher=basic"]
-    return overrides
 
 
 def launch(
@@ -39,6 +31,7 @@ def launch(
     sweep_dir: Path,
     jobs: int = 1,
     job_name: str = "study",
+    launcher: str = "basic",
 ) -> list[Any]:
     """Run ``task`` once per override list; returns Hydra ``JobReturn`` objects in order."""
     from hydra import initialize_config_dir
@@ -52,7 +45,7 @@ def launch(
         loader = GlobalHydra.instance().config_loader()
         master = loader.load_configuration(
             config_name="train",
-            overrides=launcher_overrides(sweep_dir, jobs, job_name),
+            overrides=launcher_overrides(launcher, sweep_dir, jobs, job_name),
             run_mode=RunMode.MULTIRUN,
         )
         context = HydraContext(config_loader=loader, callbacks=Callbacks(master))

@@ -77,6 +77,19 @@ def load_runs(store: Store | None, experiment: str, study: str, kind: str = "run
     return sorted((_record(r) for r in runs), key=lambda r: r.start_time)
 
 
+KEY_TAGS = ("study", "variant", "scene", "seed", "config_hash")
+
+
+def find_key_runs(store: Store, experiment_id: str, tags: dict[str, str]) -> list[RunRecord]:
+    """Every child run (any status) of the (study, variant, scene, seed, config_hash) in ``tags``."""
+    def quoted(value: str) -> str:
+        return "'" + value.replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+    clauses = ["tags.kind = 'run'", *(f"tags.{k} = {quoted(tags[k])}" for k in KEY_TAGS)]
+    runs = store.search(experiment_id, " and ".join(clauses))
+    return sorted((_record(r) for r in runs), key=lambda r: r.start_time)
+
+
 def latest_invocation(parents: list[RunRecord]) -> dict[str, Any] | None:
     """The invocation of the most recent parent run, if any."""
     for rec in reversed(parents):

@@ -4,14 +4,17 @@
 
 1. expand the study file into runs (variant x scene x seed) and compose every run's
    config (``harness.plan``) - bad overrides stop here, before the store is touched;
-2. check the tracking store, find runs already FINISHED with the same (study, variant,
-   scene, seed, config_hash) and skip them; child runs left RUNNING by a killed
-   invocation are marked FAILED (``failure=interrupted``);
+2. check the tracking store, skip every (study, variant, scene, seed, config_hash) already
+   FINISHED or claimed by a live worker of another invocation (``harness.lease``);
 3. generate missing synthetic scenes, open one MLflow parent run, and launch the rest
-   through a Hydra launcher (``harness.launch``; basic, or joblib for ``jobs > 1``);
-4. each job (``RunTask``, also in worker processes) opens its child run, trains through
-   ``harness.train_app.run_training`` with an ``MlflowTracker``, and ends the run FINISHED,
-   or FAILED with ``failure`` = diverged | input_error | crashed and the error in ``error``.
+   through a Hydra launcher (``harness.launchers``: basic, joblib for ``jobs > 1``, or
+   submitit's local and SLURM executors);
+4. each job (``RunTask``, also in worker processes or on other nodes) claims its child run
+   (a lease kept fresh by a heartbeat; a stale claim of a killed worker is taken over and
+   marked FAILED, ``failure=interrupted``), trains through ``harness.train_app.run_training``
+   with an ``MlflowTracker``, and ends the run FINISHED, or FAILED with ``failure`` =
+   diverged | input_error | crashed and the error in ``error``. A run claimed elsewhere in
+   the meantime comes back ``SKIPPED``.
 """
 
 from __future__ import annotations
@@ -28,12 +31,14 @@ from omegaconf import DictConfig, OmegaConf
 
 from ftgspp.errors import InputError
 from ftgspp.tracking import RunResult
-from harness import progress
+from harness import lease, progress
 from harness.confighash import config_hash, flatten_config
+from harness.conventions import scene_dataset, source_tags, system_metrics
 from harness.launch import launch
+from harness.launchers import check_launcher
 from harness.plan import PlannedRun, plan_runs, resolve
 from harness.provenance import git_sha, resolve_backend, resolve_device
-from harness.records import experiment_name, load_runs
+from harness.records import RunRecord, experiment_name, load_runs
 from harness.scenes import Generator, ensure_scene
 from harness.studies import Selection, StudySpec, expand, load_study
 from harness.tracking import MlflowTracker, Store, check_store, resolve_uri
@@ -62,13 +67,16 @@ class StudyOutcome:
     finished: int = 0
     failed: int = 0
     diverged: int = 0
+    claimed_elsewhere: int = 0  # launched, but another invocation had claimed or finished it
     parent_run_id: str = ""
     results: list[dict[str, Any]] = field(default_factory=list)
 
 
-def command_line(study: str, sel: Selection, jobs: int = 1) -> str:
+def command_line(study: str, sel: Selection, jobs: int = 1, launcher: str = "basic") -> str:
     """The ``study run`` command that reproduces an invocation."""
     parts = ["study", "run", study, "--profile", sel.profile]
+    if launcher != "basic":
+        parts += ["--launcher", launcher]
     if sel.seeds is not None:
         parts += ["--seeds", str(sel.seeds)]
     if sel.scenes:
@@ -145,6 +153,8 @@ class RunTask:
     progress_path: str
     started_at: float
     train_fn: TrainFn | None = None
+    lease_s: float = lease.DEFAULT_LEASE_S
+    command: str = ""
 
     def __call__(self, dcfg: DictConfig) -> dict[str, Any]:
         from hydra.core.hydra_config import HydraConfig
@@ -154,33 +164,41 @@ class RunTask:
         out_dir = Path(hydra_cfg.runtime.output_dir)
         cfg = resolve(dcfg, job.label)
         store = _store(self.uri)
-        tracker = self._open_run(store, job, cfg, dcfg, out_dir)
-        t0 = time.time()
-        result: RunResult | None = None
-        error: Exception | None = None
-        try:
-            result = (self.train_fn or _default_train)(cfg, out_dir, tracker)
-        except Exception as exc:  # any crash is recorded, never lost
-            error = exc
-            (out_dir / "error.txt").write_text(traceback.format_exc())
-            tracker.log_artifact(out_dir / "error.txt")
-        except BaseException:  # Ctrl-C / SystemExit: the run was killed
-            tracker.flush()
-            store.terminate(tracker.run_id, "KILLED", {"failure": "interrupted", "error": "interrupted"})
-            raise
-        seconds = time.time() - t0
-        status, extra = _outcome_tags(result, error)
-        self._close_run(store, tracker, result, status, extra, seconds, cfg.iterations, out_dir)
+        claim = lease.acquire(store, self.experiment_id, job.label, {**job.tags, "kind": "run"}, self.lease_s)
+        if claim.run_id is None:
+            print(f"[run] {job.label}: skipped ({claim.reason})", flush=True)
+            return {"label": job.label, "run_id": "", "status": "SKIPPED", "reason": claim.reason, "seconds": 0.0}
+        with lease.Heartbeat(store, claim.run_id, self.lease_s) as beat, system_metrics(claim.run_id, self.uri):
+            tracker = self._open_run(store, claim, job, cfg, dcfg, out_dir)
+            t0 = time.time()
+            result: RunResult | None = None
+            error: Exception | None = None
+            try:
+                result = (self.train_fn or _default_train)(cfg, out_dir, tracker)
+            except Exception as exc:  # any crash is recorded, never lost
+                error = exc
+                (out_dir / "error.txt").write_text(traceback.format_exc())
+                tracker.log_artifact(out_dir / "error.txt")
+            except BaseException:  # Ctrl-C / SystemExit: the run was killed
+                tracker.flush()
+                store.terminate(tracker.run_id, "KILLED", {"failure": "interrupted", "error": "interrupted"})
+                raise
+            seconds = time.time() - t0
+            status, extra = _outcome_tags(result, error)
+            beat.stop()
+            if not self._close_run(store, tracker, result, status, extra, seconds, cfg.iterations, out_dir):
+                status, extra = "LOST", {"failure": "lease_lost", "error": "taken over by another invocation"}
         self._report(job, status, extra, result, seconds)
         return {"label": job.label, "run_id": tracker.run_id, "status": status, **extra, "seconds": seconds}
 
-    def _open_run(self, store: Store, job: JobInfo, cfg: Any, dcfg: DictConfig, out_dir: Path) -> MlflowTracker:
-        """Create the child run with its tags, params and resolved config."""
+    def _open_run(self, store: Store, claim: lease.Claim, job: JobInfo, cfg: Any, dcfg: DictConfig,
+                  out_dir: Path) -> MlflowTracker:
+        """Fill the claimed child run: tags, params, the scene as a dataset input, the config."""
+        assert claim.run_id is not None
         device = resolve_device(cfg.device)
         tags = {
-            **job.tags,
-            "kind": "run",
             "mlflow.parentRunId": self.parent_run_id,
+            **source_tags(self.command),
             "git_sha": git_sha(),
             "backend": resolve_backend(cfg.backend, device),
             "device": device,
@@ -191,18 +209,25 @@ class RunTask:
         if actual != job.config_hash:  # the launcher's full composition disagrees with the plan
             print(f"[run] {job.label}: warning: config hash {actual} differs from planned {job.config_hash}")
             tags["config_hash_actual"] = actual
-        tracker = MlflowTracker(store, store.create_run(self.experiment_id, job.label, tags))
+        tracker = MlflowTracker(store, claim.run_id)
+        tracker.set_tags(tags)
         tracker.log_params(params)
+        store.log_inputs(claim.run_id, [scene_dataset(job.tags["scene"], cfg.data.path, cfg.data.format, job.synth)])
         config_file = out_dir / "config.yaml"
         config_file.write_text(OmegaConf.to_yaml(dcfg, resolve=True))
         tracker.log_artifact(config_file)
-        print(f"[run] {job.label}: started (child run {tracker.run_id[:8]}, outputs in {out_dir})", flush=True)
+        took = f", took over {', '.join(r[:8] for r in claim.took_over)}" if claim.took_over else ""
+        print(f"[run] {job.label}: started (child run {tracker.run_id[:8]}{took}, outputs in {out_dir})", flush=True)
         return tracker
 
     @staticmethod
     def _close_run(store: Store, tracker: MlflowTracker, result: RunResult | None, status: str,
-                   extra: dict[str, str], seconds: float, iterations: int, out_dir: Path) -> None:
-        """Final metrics and artifacts the trainer did not log itself, then the status."""
+                   extra: dict[str, str], seconds: float, iterations: int, out_dir: Path) -> bool:
+        """Final metrics and artifacts the trainer did not log itself, then the status.
+
+        Returns False (and leaves the run alone) if another invocation took the run over
+        while this worker was silent for longer than its lease.
+        """
         tracker.flush()
         if result is not None:
             final = {k: v for k, v in result.metrics.items() if k not in tracker.metric_keys}
@@ -213,7 +238,10 @@ class RunTask:
             for path in result.artifacts:
                 if Path(path).resolve() not in tracker.logged_artifacts:
                     tracker.log_artifact(path, _artifact_subdir(Path(path), out_dir))
+        if store.status(tracker.run_id) != "RUNNING":
+            return False
         store.terminate(tracker.run_id, status, extra)
+        return True
 
     def _report(self, job: JobInfo, status: str, extra: dict[str, str], result: RunResult | None,
                 seconds: float) -> None:
@@ -233,36 +261,41 @@ def _key(p: PlannedRun) -> tuple[str, str, int, str]:
     return (p.spec.variant, p.spec.scene.name, p.spec.seed, p.config_hash)
 
 
-def pending(store: Store, experiment: str, study: str, planned: list[PlannedRun]) -> list[PlannedRun]:
-    """Planned runs without a FINISHED record; RUNNING leftovers of killed invocations become FAILED."""
+def pending(store: Store, experiment: str, study: str, planned: list[PlannedRun],
+            lease_s: float = lease.DEFAULT_LEASE_S) -> tuple[list[PlannedRun], list[RunRecord]]:
+    """(planned runs to launch, live claims of other invocations that are left to them).
+
+    A run is launched unless it FINISHED or a live worker holds it; stale RUNNING runs are
+    taken over by the job that claims the run (``harness.lease.acquire``), not here.
+    """
     existing = load_runs(store, experiment, study)
-    keys = {_key(p) for p in planned}
-    for rec in existing:
-        if rec.status == "RUNNING" and rec.key in keys:
-            store.terminate(rec.run_id, "FAILED", {"failure": "interrupted",
-                                                   "error": "run was killed (found RUNNING on resume)"})
     done = {r.key for r in existing if r.status == "FINISHED"}
-    return [p for p in planned if _key(p) not in done]
+    live = {r.key: r for r in existing if lease.is_live(r, lease_s) and r.key not in done}
+    todo = [p for p in planned if _key(p) not in done and _key(p) not in live]
+    keys = {_key(p) for p in planned}
+    return todo, [r for k, r in live.items() if k in keys]
 
 
-def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jobs: int,
+def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jobs: int, launcher: str,
                  planned: list[PlannedRun], todo: list[PlannedRun]) -> tuple[str, str]:
     """The invocation's parent run (tags, params, the study file); returns (run id, stamp)."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
+    command = command_line(study.name, sel, jobs, launcher)
     tags = {
         "study": study.name,
         "profile": sel.profile,
         "kind": "study",
-        "invocation": json.dumps({**asdict(sel), "jobs": jobs}),
-        "command": command_line(study.name, sel, jobs),
+        "invocation": json.dumps({**asdict(sel), "jobs": jobs, "launcher": launcher}),
+        "command": command,
+        **source_tags(command),
         "git_sha": git_sha(),
         "n_runs": str(len(planned)),
         "n_launched": str(len(todo)),
     }
     parent_id = store.create_run(exp_id, f"{study.name}-{sel.profile}-{stamp}", tags)
     n_seeds = len({p.spec.seed for p in planned})
-    store.log_batch(parent_id, params={"profile": sel.profile, "jobs": jobs, "seeds": n_seeds,
-                                       "base_seed": study.base_seed})
+    store.log_batch(parent_id, params={"profile": sel.profile, "jobs": jobs, "launcher": launcher,
+                                       "seeds": n_seeds, "base_seed": study.base_seed})
     if study.path is not None:  # the study definition this invocation used
         store.log_artifact(parent_id, study.path)
     return parent_id, stamp
@@ -277,9 +310,31 @@ def _tally(outcome: StudyOutcome, todo: list[PlannedRun], returns: list[Any]) ->
         outcome.results.append(res)
         if res["status"] == "FINISHED":
             outcome.finished += 1
+        elif res["status"] == "SKIPPED":
+            outcome.claimed_elsewhere += 1
         else:
             outcome.failed += 1
             outcome.diverged += res.get("failure") == "diverged"
+
+
+def _tally_from_store(outcome: StudyOutcome, store: Store, experiment: str, study: str, parent_id: str,
+                      error: BaseException) -> None:
+    """Count the children of ``parent_id`` as stored: a job that died (killed, node lost,
+    time limit) makes submitit raise for the whole array, but every run recorded itself."""
+    for rec in load_runs(store, experiment, study):
+        if rec.tags.get("mlflow.parentRunId") != parent_id:
+            continue
+        res = {"label": rec.tags.get("mlflow.runName", ""), "run_id": rec.run_id, "status": rec.status,
+               "failure": rec.failure, "error": rec.error}
+        outcome.results.append(res)
+        outcome.finished += rec.status == "FINISHED"
+        outcome.failed += rec.status in ("FAILED", "KILLED")
+        outcome.diverged += rec.failure == "diverged"
+    lost = outcome.launched - len(outcome.results)
+    outcome.failed += max(0, lost)
+    print(f"[study] launcher: {type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
+          f" ({max(0, lost)} jobs left no finished record; their claims expire and the next `study run` retries them)",
+          flush=True)
 
 
 def run_study(
@@ -287,6 +342,8 @@ def run_study(
     sel: Selection,
     *,
     jobs: int = 1,
+    launcher: str = "basic",
+    lease_s: float | None = None,
     studies_dir: Path | None = None,
     out_root: Path = OUT_ROOT,
     train_fn: TrainFn | None = None,
@@ -296,28 +353,38 @@ def run_study(
     """Run the missing or failed runs of study ``name``; see the module docstring."""
     if jobs < 1:
         raise InputError("--jobs", "must be at least 1")
+    try:
+        lease_s = lease.lease_seconds(lease_s)
+    except ValueError as exc:
+        raise InputError("--lease", str(exc)) from None
     study = load_study(name, studies_dir)
     planned = plan_runs(expand(study, sel))  # every bad input stops here ...
     uri, exp_name = tracking_target(sel, planned)
+    check_launcher(launcher, uri)
     check_store(uri)  # ... or here, before anything is written
 
     store = Store(uri)
-    exp_id = store.experiment_id(exp_name)
+    exp_id = store.experiment_id(exp_name)  # created once, before any worker starts
     assert exp_id is not None
-    todo = pending(store, exp_name, name, planned)
+    todo, elsewhere = pending(store, exp_name, name, planned, lease_s)
     outcome = StudyOutcome(total=len(planned), skipped=len(planned) - len(todo), launched=len(todo))
     n_var, n_scene, n_seed = (len(set(x)) for x in zip(*(p.spec.key for p in planned)))
+    n_done = outcome.skipped - len(elsewhere)
     echo(f"{name} ({sel.profile}): {len(planned)} runs = {n_var} variants x {n_scene} scenes x {n_seed} seeds;"
-         f" {outcome.skipped} already finished, {len(todo)} to run"
-         + (f" with {jobs} parallel jobs" if jobs > 1 and todo else ""))
+         f" {n_done} already finished, {len(elsewhere)} running elsewhere, {len(todo)} to run"
+         + (f" with {jobs} parallel jobs" if jobs > 1 and todo else "")
+         + (f" through the {launcher} launcher" if launcher != "basic" and todo else ""))
+    for rec in elsewhere:
+        echo(f"  running elsewhere: {rec.tags.get('mlflow.runName', rec.key)} ({lease.describe(rec)})")
     if not todo:
         return outcome
 
     for scene in {p.spec.scene.name: p.spec.scene for p in todo}.values():
         ensure_scene(scene, generate, echo)
-    parent_id, stamp = _open_parent(store, exp_id, study, sel, jobs, planned, todo)
+    parent_id, stamp = _open_parent(store, exp_id, study, sel, jobs, launcher, planned, todo)
     outcome.parent_run_id = parent_id
-    sweep_dir = Path(out_root) / name / f"{stamp}-{parent_id[:8]}"
+    # absolute: submitit's folder lives under it and jobs on other nodes must find it
+    sweep_dir = (Path(out_root) / name / f"{stamp}-{parent_id[:8]}").resolve()
     task = RunTask(
         uri=uri,
         experiment_id=exp_id,
@@ -326,19 +393,29 @@ def run_study(
         progress_path=str(sweep_dir / "progress.jsonl"),
         started_at=time.time(),
         train_fn=train_fn,
+        lease_s=lease_s,
+        command=command_line(name, sel, jobs, launcher),
     )
     # progress bars of parallel workers would interleave (progress is not part of the hash)
-    quiet = ["progress=false"] if jobs > 1 else []
+    quiet = ["progress=false"] if jobs > 1 or launcher in ("local", "slurm") else []
     job_overrides = [[*p.spec.overrides, *quiet, f"hydra.sweep.subdir={p.spec.label}"] for p in todo]
     try:
-        returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=jobs, job_name=f"study_{name}")
+        returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=jobs, job_name=f"study_{name}",
+                         launcher=launcher)
+        _tally(outcome, todo, returns)
+    except Exception as exc:  # e.g. submitit's UncompletedJobError: a job died without returning
+        if launcher not in ("local", "slurm"):
+            store.terminate(parent_id, "FAILED", {"error": f"{type(exc).__name__}: {exc}"[:1000]})
+            raise
+        _tally_from_store(outcome, store, exp_name, name, parent_id, exc)
     except BaseException as exc:
         status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
         store.terminate(parent_id, status, {"error": f"{type(exc).__name__}: {exc}"[:1000]})
         raise
-    _tally(outcome, todo, returns)
     store.terminate(parent_id, "FINISHED", {"n_finished": str(outcome.finished), "n_failed": str(outcome.failed),
-                                            "n_diverged": str(outcome.diverged)})
+                                            "n_diverged": str(outcome.diverged),
+                                            "n_claimed_elsewhere": str(outcome.claimed_elsewhere)})
+    elsewhere_txt = f", {outcome.claimed_elsewhere} claimed by other invocations" if outcome.claimed_elsewhere else ""
     echo(f"{name}: {outcome.finished} finished, {outcome.failed} failed ({outcome.diverged} diverged),"
-         f" {outcome.skipped} skipped; parent run {parent_id} in {exp_name} at {uri}")
+         f" {outcome.skipped} skipped{elsewhere_txt}; parent run {parent_id} in {exp_name} at {uri}")
     return outcome

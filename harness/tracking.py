@@ -32,6 +32,9 @@ PARAMS_PER_BATCH = 100  # MLflow's limit for params/tags per log_batch
 METRICS_PER_BATCH = 900  # below MLflow's 1000 entities per log_batch
 FLUSH_SECONDS = 10.0
 TAG_MAX_CHARS = 4_000
+EXPERIMENT_KIND = "mlflow.experimentKind"  # the UI's choice between GenAI traces and training runs
+TRAINING_KIND = "custom_model_development"
+DB_SCHEMES = ("postgresql", "mysql", "mssql")  # SQLAlchemy stores other than SQLite
 T = TypeVar("T")
 
 
@@ -65,6 +68,9 @@ def check_store(uri: str, timeout_s: float = 5.0) -> None:
         if not folder.is_dir() or not os.access(folder, os.W_OK):
             raise InputError("tracking.uri", f"{uri}: folder {folder} does not exist or is not writable")
         return
+    if uri.split(":", 1)[0].split("+", 1)[0] in DB_SCHEMES:
+        _check_database(uri, timeout_s)
+        return
     if uri.startswith(("http://", "https://")):
         try:
             with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout_s) as resp:
@@ -73,6 +79,34 @@ def check_store(uri: str, timeout_s: float = 5.0) -> None:
         except (urllib.error.URLError, OSError) as exc:
             reason = getattr(exc, "reason", exc)
             raise InputError("tracking.uri", f"cannot reach an MLflow server at {uri} ({reason})") from None
+
+
+def _check_database(uri: str, timeout_s: float) -> None:
+    """Connect once to a database store (e.g. ``postgresql+psycopg://``); InputError if refused."""
+    try:
+        import sqlalchemy
+
+        engine = sqlalchemy.create_engine(uri, connect_args={"connect_timeout": int(max(1, timeout_s))})
+        try:
+            with engine.connect():
+                pass
+        finally:
+            engine.dispose()
+    except ImportError as exc:
+        raise InputError("tracking.uri", f"{_redact(uri)}: driver missing ({exc}); pip install 'psycopg[binary]'") \
+            from None
+    except Exception as exc:  # OperationalError: refused, bad password, no such database
+        reason = str(getattr(exc, "orig", exc) or exc).strip().splitlines()[0]
+        raise InputError("tracking.uri", f"database refused the connection at {_redact(uri)} ({reason})") from None
+
+
+def _redact(uri: str) -> str:
+    """The URI with any password replaced by ``***``."""
+    scheme, sep, rest = uri.partition("://")
+    creds, at, host = rest.rpartition("@")
+    if not at or ":" not in creds:
+        return uri
+    return f"{scheme}{sep}{creds.split(':', 1)[0]}:***@{host}"
 
 
 def _is_locked(exc: BaseException) -> bool:
@@ -129,11 +163,26 @@ class Store:
     # --- experiments and runs -------------------------------------------------------
 
     def experiment_id(self, name: str, create: bool = True) -> str | None:
-        """Id of the experiment ``name``; created if missing and ``create``."""
+        """Id of the experiment ``name``; created if missing and ``create``.
+
+        A created experiment is tagged as a training experiment (``mlflow.experimentKind``),
+        so the MLflow UI opens it on its runs table rather than the GenAI traces view. Two
+        invocations creating it at once: the loser reads the winner's experiment.
+        """
         exp = self.call(self.client.get_experiment_by_name, name, write=False)
-        if exp is not None:
-            return exp.experiment_id
-        return self.call(self.client.create_experiment, name) if create else None
+        if exp is None and create:
+            try:
+                exp_id = self.call(self.client.create_experiment, name, tags={EXPERIMENT_KIND: TRAINING_KIND})
+                return exp_id
+            except Exception as exc:  # RESOURCE_ALREADY_EXISTS from a concurrent creator
+                exp = self.call(self.client.get_experiment_by_name, name, write=False)
+                if exp is None:
+                    raise exc from None
+        if exp is None:
+            return None
+        if create and EXPERIMENT_KIND not in exp.tags:  # made by an older harness
+            self.call(self.client.set_experiment_tag, exp.experiment_id, EXPERIMENT_KIND, TRAINING_KIND)
+        return exp.experiment_id
 
     def create_run(self, experiment_id: str, run_name: str, tags: dict[str, str]) -> str:
         run = self.call(self.client.create_run, experiment_id, tags=tags, run_name=run_name)
@@ -180,6 +229,18 @@ class Store:
     def log_artifact(self, run_id: str, path: Path, artifact_path: str | None = None) -> None:
         fn = self.client.log_artifacts if path.is_dir() else self.client.log_artifact
         self.call(fn, run_id, str(path), artifact_path, write=False)
+
+    def status(self, run_id: str) -> str:
+        """The run's status (RUNNING, FINISHED, FAILED, KILLED)."""
+        return self.call(self.client.get_run, run_id, write=False).info.status
+
+    def delete_run(self, run_id: str) -> None:
+        """Soft-delete a run (searches no longer see it); used to withdraw a lease claim."""
+        self.call(self.client.delete_run, run_id)
+
+    def log_inputs(self, run_id: str, datasets: list[Any]) -> None:
+        """Log MLflow ``DatasetInput`` entities."""
+        self.call(self.client.log_inputs, run_id, datasets=datasets)
 
     def terminate(self, run_id: str, status: str, tags: dict[str, str] | None = None) -> None:
         """Set final tags and status (FINISHED, FAILED or KILLED)."""

@@ -15,6 +15,7 @@ import pytest
 from conftest import HERE, TOY_STUDIES, prepare_workdir, use_fakes
 from fakes import LOSS_STEPS, fake_generate, fake_train
 
+from harness.lease import is_live
 from harness.records import load_runs, open_store
 from harness.runner import run_study
 from harness.studies import Selection
@@ -120,17 +121,21 @@ def test_crashed_and_killed_runs_are_failed_then_rerun(workdir: Path) -> None:
     crashed = [r for r in _runs() if r.status == "FAILED"]
     assert len(crashed) == 1 and crashed[0].tags["failure"] == "crashed"
     assert "RuntimeError: simulated crash of seed 1" in crashed[0].tags["error"]
-    # a run left RUNNING by a killed invocation
+    # a run left RUNNING by a killed invocation: its last heartbeat is older than its lease
     store = open_store(_uri())
     exp = store.experiment_id(EXP)
     key_tags = {k: crashed[0].tags[k] for k in ("study", "variant", "scene", "seed", "config_hash")}
-    zombie = store.create_run(exp, "zombie", {**key_tags, "kind": "run"})
+    stale = {"lease.owner": "node7:123", "lease.heartbeat": str(time.time() - 400), "lease.seconds": "300"}
+    zombie = store.create_run(exp, "zombie", {**key_tags, "kind": "run", **stale})
     second = _run(sel)
     assert (second.launched, second.finished) == (1, 1)
     runs = {r.run_id: r for r in _runs()}
     assert runs[zombie].status == "FAILED" and runs[zombie].tags["failure"] == "interrupted"
+    assert "lease expired" in runs[zombie].tags["error"] and "node7:123" in runs[zombie].tags["error"]
     finished = Counter(r.key for r in runs.values() if r.status == "FINISHED")
     assert len(finished) == 2 and set(finished.values()) == {1}
+    taker = next(r for r in runs.values() if r.status == "FINISHED" and r.key == runs[zombie].key)
+    assert taker.tags["lease.took_over"] == zombie
 
 
 def test_parallel_jobs_lose_nothing_and_match_serial(toy, tmp_path: Path, mlflow_template: Path,
@@ -151,7 +156,7 @@ def test_parallel_jobs_lose_nothing_and_match_serial(toy, tmp_path: Path, mlflow
 
 def test_sigkill_then_rerun_finishes_only_the_missing_runs(workdir: Path) -> None:
     env = {**os.environ, "FAKE_TRAIN_SLEEP": "1.5", "PYTHONPATH": str(HERE)}
-    args = ["run", "toy", "--variants", "baseline,cc", "--seeds", "3"]
+    args = ["run", "toy", "--variants", "baseline,cc", "--seeds", "3", "--lease", "2"]
     proc = subprocess.Popen([sys.executable, str(HERE / "drive_study.py"), *args], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -169,9 +174,15 @@ def test_sigkill_then_rerun_finishes_only_the_missing_runs(workdir: Path) -> Non
     before = _runs()
     n_finished = sum(r.status == "FINISHED" for r in before)
     assert 2 <= n_finished < 6
+    orphans = [r for r in before if r.status == "RUNNING"]
+    assert len(orphans) == 1, "the killed run stays RUNNING: nobody may fail it while its lease is fresh"
+    while any(is_live(r) for r in _runs() if r.status == "RUNNING"):  # its 2 s lease runs out
+        time.sleep(0.2)
     out = _run(Selection(variants=["baseline", "cc"], seeds=3))
     assert out.launched == 6 - n_finished
     after = _runs()
     finished = Counter(r.key for r in after if r.status == "FINISHED")
     assert len(finished) == 6 and set(finished.values()) == {1}, "every run exactly once"
     assert all(r.status != "RUNNING" for r in after)
+    orphan = next(r for r in after if r.run_id == orphans[0].run_id)
+    assert orphan.status == "FAILED" and "lease expired" in orphan.error

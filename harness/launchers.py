@@ -1,0 +1,66 @@
+"""Which Hydra launcher runs a study's jobs, and whether it can run here.
+
+``study run --launcher NAME``:
+
+- ``basic``: Hydra's in-process launcher, one run after another (``--jobs N`` > 1 switches
+  to ``joblib``);
+- ``joblib``: ``--jobs`` worker processes on this machine;
+- ``local``: submitit's local executor (``conf/hydra/launcher/local.yaml``), one process per
+  run, all started at once - a dry run of the SLURM path on one machine;
+- ``slurm``: submitit's SLURM executor (``conf/hydra/launcher/slurm.yaml``: partition, time
+  limit, GPUs, CPUs, memory, array parallelism, site setup lines); one job array.
+
+The released ``hydra-submitit-launcher`` 1.2.0 works unchanged with Python 3.11 and
+hydra-core 1.3 (checked by ``tests/harness/test_study_launchers.py``); no shim. Its one
+weakness for us - when a job dies without returning (killed, node lost, time limit) its
+``launch`` raises for the whole array - is handled by the runner, which then counts the
+runs from the tracking store, where every run records itself.
+
+``check_launcher`` turns a launcher that cannot work into one ``InputError`` line before
+anything is written: ``sbatch`` missing, or a SQLite file store with SLURM (jobs on other
+nodes cannot share a SQLite file safely; they need ``mlflow server``).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from ftgspp.errors import InputError
+from harness.tracking import sqlite_path
+
+LAUNCHERS = ("basic", "joblib", "local", "slurm")
+# Hydra config names in conf/hydra/launcher (our files for the submitit ones)
+HYDRA_LAUNCHER = {"basic": "basic", "joblib": "joblib", "local": "local", "slurm": "slurm"}
+SERVER_HINT = "start a tracking server (make server; docs/cluster.md) and pass tracking=server or tracking.uri=..."
+
+
+def check_launcher(launcher: str, uri: str) -> None:
+    """Raise ``InputError`` if ``launcher`` is unknown or cannot run with this store here."""
+    if launcher not in LAUNCHERS:
+        raise InputError("--launcher", f"unknown launcher '{launcher}' (choose from {', '.join(LAUNCHERS)})")
+    if launcher in ("local", "slurm"):
+        try:
+            import hydra_plugins.hydra_submitit_launcher  # noqa: F401
+            import submitit  # noqa: F401
+        except ImportError:
+            raise InputError("--launcher", f"{launcher} needs hydra-submitit-launcher and submitit "
+                             "(pip install hydra-submitit-launcher submitit)") from None
+    if launcher == "slurm":
+        if shutil.which("sbatch") is None:
+            raise InputError("--launcher slurm", "sbatch not found on PATH (run on a SLURM login node,"
+                             " or use --launcher local)")
+        if sqlite_path(uri) is not None:
+            raise InputError("--launcher slurm", f"jobs on other nodes cannot share the SQLite store {uri};"
+                             f" {SERVER_HINT}")
+
+
+def launcher_overrides(launcher: str, sweep_dir: Path, jobs: int, job_name: str) -> list[str]:
+    """Hydra-level overrides selecting the launcher and where jobs write."""
+    overrides = [f"hydra.sweep.dir={sweep_dir.as_posix()}", f"hydra.job.name={job_name}"]
+    if launcher == "basic" and jobs > 1:
+        launcher = "joblib"
+    overrides.append(f"hydra/launcher={HYDRA_LAUNCHER[launcher]}")
+    if launcher == "joblib":
+        overrides.append(f"hydra.launcher.n_jobs={jobs}")
+    return overrides
