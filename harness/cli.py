@@ -6,6 +6,7 @@
                    [key=value overrides ...]
     study status NAME [same selection options]
     study report NAME [same selection options] [--out DIR]
+    study index [--out DIR]          reports/index.md: every study's claims with verdicts
 
 Studies live in ``studies/NAME.yaml``. Runs are tracked in MLflow (``sqlite:///mlflow.db``
 in the working directory unless ``MLFLOW_TRACKING_URI`` or ``tracking.uri=`` says
@@ -66,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     report = sub.add_parser("report", help="tables and plots into reports/NAME/")
     _selection_args(report)
     report.add_argument("--out", type=Path, default=Path("reports"), help="reports root (default: reports)")
+    index = sub.add_parser("index", help="reports/index.md: one row per claim of every study with runs")
+    index.add_argument("--out", type=Path, default=Path("reports"), help="reports root (default: reports)")
     return parser
 
 
@@ -142,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     # overrides may come after options too (argparse would have consumed the positional early)
     args, extra = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
-    if extra and (args.command == "list" or any(e.startswith("-") for e in extra)):
+    if extra and (args.command in ("list", "index") or any(e.startswith("-") for e in extra)):
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if extra:
         args.overrides = [*args.overrides, *extra]
@@ -161,6 +164,11 @@ def main(argv: list[str] | None = None) -> int:
             from harness.report import write_report
 
             write_report(args.name, _selection(args, required=False), reports_root=args.out)
+            return 0
+        if args.command == "index":
+            from harness.claims_report import write_claims_index
+
+            write_claims_index(args.out)
             return 0
     except InputError as err:
         exit_on_input_error(err)

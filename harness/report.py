@@ -11,7 +11,9 @@ Written files:
 - ``diagnostics/<variant>/<scene>/...``: diagnostic images the runs logged under the
   ``diagnostics/`` artifact path (lowest finished seed per cell);
 - ``runs.csv`` (one row per run) and ``summary.csv`` (mean, std, CI, t, p per cell);
-- ``index.md``: question, exact commands, config hashes, links to all of the above.
+- ``index.md``: question, exact commands, config hashes, links to all of the above;
+- ``claims.csv`` and a "Claims" section in ``table.md``, ``table.tex`` and ``index.md``: each
+  claim of the study file with its verdict (``harness.claims``, ``harness.claims_report``).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from typing import Any, Callable
 
 import pandas as pd
 
-from harness import aggregate, plots, tables
+from harness import aggregate, claims, claims_report, plots, tables
 from harness.plan import PlannedRun, plan_runs
 from harness.records import RunRecord, latest_invocation, load_runs, open_store, select
 from harness.runner import command_line, tracking_target
@@ -270,7 +272,7 @@ def fetch_diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, 
 
 
 def write_index(data: ReportData, out: Path, tabs: list[tables.Table], figures: list[tuple[str, Path]],
-                diags: list[tuple[str, str, int, list[Path]]]) -> None:
+                diags: list[tuple[str, str, int, list[Path]]], claims_md: str = "") -> None:
     study, df = data.study, data.df
     prof = study.profile(data.sel.profile)
     c = aggregate.counts(df)
@@ -302,6 +304,8 @@ def write_index(data: ReportData, out: Path, tabs: list[tables.Table], figures: 
     ]
     if cmds:
         lines += ["Invocations that produced these runs:", "", *[f"- `{cmd}`" for cmd in cmds], ""]
+    if claims_md:
+        lines += ["## Claims", "", claims_md, ""]
     lines += ["## Tables", "",
               "Full tables, t-tests and failures: [table.md](table.md); LaTeX: [table.tex](table.tex);",
               "per-run data: [runs.csv](runs.csv), per-cell statistics: [summary.csv](summary.csv).", ""]
@@ -361,15 +365,34 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
     out.mkdir(parents=True, exist_ok=True)
     data.df.to_csv(out / "runs.csv", index=False)
     tabs, summaries = write_tables(data, out)
+    claims_md = write_claims(data, out)
     if summaries:
         pd.concat(summaries.values(), ignore_index=True).to_csv(out / "summary.csv", index=False)
     figures = write_plots(data, out)
     diags = fetch_diagnostics(data, out)
-    write_index(data, out, tabs, figures, diags)
+    write_index(data, out, tabs, figures, diags, claims_md)
     c = aggregate.counts(data.df)
     echo(f"{name}: report of {c['n_runs']} runs ({c['n_finished']} finished, {c['n_failed']} failed,"
          f" {c['n_missing'] + c['n_running']} missing) written to {out / 'index.md'}")
     return out / "index.md"
+
+
+# --- claims: the study file's claims with verdicts (harness/claims.py) -------------------
+
+
+def write_claims(data: ReportData, out: Path) -> str:
+    """Test the study's claims on its runs: ``claims.csv``, a "Claims" section appended to
+    ``table.md`` and ``table.tex``; returns the Markdown ("" when the study states none)."""
+    if not data.study.claims:
+        return ""
+    frame = claims.evaluate(convention_gaps(data.df), data.study.claims)
+    frame.to_csv(out / "claims.csv", index=False)
+    md = claims_report.claims_markdown(frame)
+    with (out / "table.md").open("a") as f:
+        f.write(f"\n## Claims\n\n{md}\n")
+    with (out / "table.tex").open("a") as f:
+        f.write("\n" + claims_report.claims_latex(frame, data.study.name) + "\n")
+    return md
 
 
 def _embed(path: Path, root: Path) -> str:
