@@ -6,7 +6,7 @@ PIP    := $(PY) -m pip
 SCENE  ?= data/synth/studio
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo train-quick test weights bench clean
+.PHONY: install demo train-quick test weights bench clean reports
 
 # torch 2.13.0 (CPU) goes in first, alone, so nothing later pulls a multi-GB CUDA build.
 $(STAMP): pyproject.toml
@@ -34,6 +34,21 @@ demo: install
 train-quick: install
 	test -d $(SCENE) || $(VENV)/bin/ftgspp synth --out $(SCENE) --preset studio --seed 0
 	$(VENV)/bin/ftgspp train profile=quick data.path=$(SCENE) hydra.run.dir=outputs/train-quick
+
+# Every study's quick profile, then every report and reports/index.md (the page to open first).
+# Resumable: finished runs are skipped, so a second call with nothing missing only rewrites the
+# reports. Prints the plan and expected time first; SECONDS_PER_RUN is used until the store
+# has finished runs to time. JOBS runs per study in parallel (2 cores: keep 1 or 2).
+STUDIES ?= $(sort $(filter-out _%,$(basename $(notdir $(wildcard studies/*.yaml)))))
+JOBS ?= 1
+SECONDS_PER_RUN ?= 120
+
+reports: install weights
+	$(PY) -m harness.reports_plan --seconds-per-run $(SECONDS_PER_RUN) --jobs $(JOBS)
+	@set -e; for s in $(STUDIES); do $(VENV)/bin/study run $$s --profile quick --jobs $(JOBS); done
+	@set -e; for s in $(STUDIES); do $(VENV)/bin/study report $$s --profile quick; done
+	$(VENV)/bin/study index
+	@echo "open reports/index.md"
 
 test: install weights
 	$(VENV)/bin/python -m pytest -q
