@@ -101,6 +101,46 @@ def test_status_and_report_of_a_study_never_run_write_no_store(tmp_path: Path, m
 
 def test_overrides_may_follow_options(monkeypatch: pytest.MonkeyPatch) -> None:
     seen = {}
-    monkeypatch.setattr("harness.runner.run_study", lambda name, sel, jobs: seen.update(sel=sel, jobs=jobs))
+    monkeypatch.setattr("harness.runner.run_study", lambda name, sel, jobs, **kw: seen.update(sel=sel, jobs=jobs, **kw))
     assert main(["run", "secret5", "a=1", "--variants", "cc", "b=2", "--jobs", "2", "c=3"]) == 0
     assert seen["sel"].overrides == ["a=1", "b=2", "c=3"] and seen["sel"].variants == ["cc"] and seen["jobs"] == 2
+    assert seen["launcher"] == "basic" and seen["lease_s"] is None
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _fake_sbatch(folder: Path) -> str:
+    sbatch = folder / "sbatch"
+    sbatch.write_text("#!/bin/sh\necho 'sbatch must not be called' >&2\nexit 1\n")
+    sbatch.chmod(0o755)
+    return str(folder)
+
+
+@pytest.mark.parametrize("case", ["unknown_launcher", "no_sbatch", "slurm_sqlite", "db_refused", "bad_lease"])
+def test_scale_out_bad_input_is_one_line_exit_2_and_writes_nothing(case: str, workdir: Path, fakes_on: None,
+                                                                   monkeypatch: pytest.MonkeyPatch,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    bin_dir = workdir.parent / "bin"
+    bin_dir.mkdir()
+    args, words = {
+        "unknown_launcher": (["--launcher", "ray"], "invalid choice: 'ray'"),
+        "no_sbatch": (["--launcher", "slurm"], "sbatch not found on PATH"),
+        "slurm_sqlite": (["--launcher", "slurm"], "make server"),
+        "db_refused": ([f"tracking.uri=postgresql+psycopg://me:secret@127.0.0.1:{_free_port()}/mlflow"],
+                       "database refused the connection"),
+        "bad_lease": (["--lease", "0"], "--lease"),
+    }[case]
+    path = bin_dir.as_posix() if case == "no_sbatch" else f"{_fake_sbatch(bin_dir)}:{Path('/usr/bin')}"
+    monkeypatch.setenv("PATH", path)
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "toy", *args])
+    assert exc.value.code == 2
+    lines = _err_lines(capsys)
+    assert len(lines) == 1 and words in lines[0], lines
+    assert "secret" not in lines[0], "no password in error lines"
+    _store_is_untouched()
+    assert not Path("outputs").exists() and not Path("data").exists()

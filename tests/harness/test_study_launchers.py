@@ -1,0 +1,118 @@
+"""Launchers and shared stores: submitit config composition, picklable jobs, the submitit
+local executor end to end, and two concurrent ``study run`` invocations on one SQLite store."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import pytest
+from conftest import HERE, TOY_STUDIES, prepare_workdir
+from fakes import LOSS_STEPS, fake_generate, fake_train
+
+from harness.launchers import launcher_overrides
+from harness.records import load_runs, open_store
+from harness.runner import JobInfo, RunTask, run_study
+from harness.schema import CONF_DIR, register
+from harness.studies import Selection
+
+EXP = "ftgspp/toy"
+
+
+def _uri() -> str:
+    return f"sqlite:///{Path('mlflow.db').resolve()}"
+
+
+def _finished() -> dict:
+    return {r.key: r for r in load_runs(open_store(_uri()), EXP, "toy") if r.status == "FINISHED"}
+
+
+@pytest.mark.parametrize("launcher, target", [
+    ("slurm", "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"),
+    ("local", "hydra_plugins.hydra_submitit_launcher.submitit_launcher.LocalLauncher"),
+])
+def test_submitit_launcher_configs_compose_with_a_shared_folder(launcher: str, target: str, tmp_path: Path) -> None:
+    from hydra import compose, initialize_config_dir
+
+    sweep = tmp_path / "shared" / "sweep"
+    register()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("train", [*launcher_overrides(launcher, sweep, 1, "study_toy"), "hydra.launcher.timeout_min=30"],
+                      return_hydra_config=True)
+    hl = cfg.hydra.launcher
+    assert hl._target_ == target
+    assert hl.submitit_folder == f"{sweep.as_posix()}/.submitit/%j", "next to the sweep, never /tmp"
+    assert hl.timeout_min == 30 and hl.name == "study_toy"
+    if launcher == "slurm":
+        assert hl.gpus_per_node == 1 and hl.cpus_per_task == 8 and hl.mem_gb == 32 and hl.array_parallelism == 16
+        assert list(hl.setup) == [] and hl.partition is None and hl.max_num_timeout == 0
+
+
+def test_basic_and_joblib_launcher_overrides(tmp_path: Path) -> None:
+    assert "hydra/launcher=basic" in launcher_overrides("basic", tmp_path, 1, "x")
+    assert launcher_overrides("basic", tmp_path, 3, "x")[-2:] == ["hydra/launcher=joblib", "hydra.launcher.n_jobs=3"]
+
+
+def test_run_task_survives_pickling_as_submitit_does() -> None:
+    import cloudpickle
+
+    task = RunTask(uri="sqlite:////x/mlflow.db", experiment_id="1", parent_run_id="p",
+                   jobs=[JobInfo("baseline/easy/seed0", {"variant": "baseline"}, "abc", {"preset": "studio"})],
+                   progress_path="/x/progress.jsonl", started_at=1.0, train_fn=fake_train, lease_s=30.0,
+                   command="study run toy")
+    for dumps, loads in ((pickle.dumps, pickle.loads), (cloudpickle.dumps, cloudpickle.loads)):
+        back = loads(dumps(task))
+        assert back == task and back.train_fn is fake_train
+
+
+@pytest.mark.slow
+def test_submitit_local_runs_the_study_with_the_same_metrics_as_basic(workdir: Path, mlflow_template: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each run in its own submitit process (the fake trainer is found through PYTHONPATH)."""
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")]))
+    sel = Selection(variants=["baseline", "cc"], seeds=2)
+    kw = dict(studies_dir=TOY_STUDIES, train_fn=fake_train, generate=fake_generate, echo=lambda s: None)
+    out = run_study("toy", sel, launcher="local", **kw)
+    assert (out.launched, out.finished, out.failed) == (4, 4, 0)
+    local = _finished()
+    assert len(local) == 4
+    store = open_store(_uri())
+    pids = set()
+    for rec in local.values():
+        assert rec.tags["mlflow.parentRunId"] == out.parent_run_id
+        assert len(store.client.get_metric_history(rec.run_id, "loss")) == LOSS_STEPS
+        pids.add(rec.tags["lease.owner"])
+        assert Path(rec.tags["out_dir"]).is_dir()
+    assert len(pids) == 4 and str(os.getpid()) not in {p.split(":")[1] for p in pids}, "one process per run"
+    sweep = Path(next(iter(local.values())).tags["out_dir"]).parents[2]
+    assert list(sweep.glob(".submitit/*/*_result.pkl")), "submitit folder inside the study's sweep folder"
+
+    prepare_workdir(workdir.parent / "basic", mlflow_template, monkeypatch)
+    run_study("toy", sel, launcher="basic", **kw)
+    basic = _finished()
+    assert basic.keys() == local.keys()
+    for key in basic:
+        assert basic[key].metrics == local[key].metrics, key
+
+
+@pytest.mark.slow
+def test_two_concurrent_invocations_on_sqlite_finish_each_run_exactly_once(workdir: Path) -> None:
+    env = {**os.environ, "FAKE_TRAIN_SLEEP": "0.5", "PYTHONPATH": str(HERE)}
+    args = [sys.executable, str(HERE / "drive_study.py"), "run", "toy", "--variants", "baseline,cc", "--seeds", "4"]
+    procs = [subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for _ in range(2)]
+    outs = [p.communicate(timeout=300)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    runs = load_runs(open_store(_uri()), EXP, "toy")
+    finished = Counter(r.key for r in runs if r.status == "FINISHED")
+    assert len(finished) == 8 and set(finished.values()) == {1}, "every run FINISHED exactly once"
+    assert all(r.status == "FINISHED" for r in runs), "no live run was failed by the other invocation"
+    owners = {r.tags["lease.owner"].split(":")[1] for r in runs}
+    assert owners <= {str(p.pid) for p in procs}
+    parents = load_runs(open_store(_uri()), EXP, "toy", kind="study")
+    n_done = sum(int(p.tags.get("n_finished", 0)) for p in parents)
+    assert n_done == 8, outs
