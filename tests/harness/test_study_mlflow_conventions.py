@@ -1,0 +1,59 @@
+"""Runs carry MLflow's own conventions: experiment kind, source tags, the scene as a dataset
+input, and system metrics from MLflow's sampler."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import pytest
+from conftest import TOY_STUDIES
+from fakes import fake_generate, fake_train
+
+from harness.conventions import folder_fingerprint, scene_dataset
+from harness.provenance import git_sha
+from harness.records import load_runs, open_store
+from harness.runner import run_study
+from harness.studies import Selection
+
+
+def test_study_runs_follow_mlflow_conventions(workdir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("MLFLOW_SYSTEM_METRICS_SAMPLING_INTERVAL", "0.1")
+    monkeypatch.setenv("FAKE_TRAIN_SLEEP", "0.6")
+    out = run_study("toy", Selection(variants=["cc"], seeds=1), studies_dir=TOY_STUDIES, train_fn=fake_train,
+                    generate=fake_generate, echo=lambda s: None)
+    assert out.finished == 1
+    store = open_store(f"sqlite:///{Path('mlflow.db').resolve()}")
+    exp = store.client.get_experiment_by_name("ftgspp/toy")
+    assert exp.tags["mlflow.experimentKind"] == "custom_model_development", "UI opens on the training runs"
+    (rec,) = load_runs(store, "ftgspp/toy", "toy")
+    (parent,) = load_runs(store, "ftgspp/toy", "toy", kind="study")
+    sha = git_sha()
+    for r in (rec, parent):
+        assert r.tags["mlflow.source.name"] == "study run toy --profile quick --seeds 1 --variants cc"
+        assert r.tags["mlflow.source.type"] == "LOCAL"
+        if sha != "unknown":
+            assert r.tags["mlflow.source.git.commit"] == sha.removesuffix("-dirty")
+    run = store.client.get_run(rec.run_id)
+    (inp,) = run.inputs.dataset_inputs
+    ds = inp.dataset
+    synth = {"layout": "dynerf", "preset": "studio", "seed": 0}
+    assert ds.name == "easy" and ds.source_type == "synthetic"
+    assert json.loads(ds.source) == {"generator": "ftgspp.data.synthetic.generate", "args": synth}
+    assert ds.digest == hashlib.sha256(json.dumps(synth, sort_keys=True).encode()).hexdigest()[:16]
+    assert json.loads(ds.profile)["format"] == "dynerf"
+    assert {t.key: t.value for t in inp.tags} == {"mlflow.data.context": "train"}
+    system = {k for k in rec.metrics if k.startswith("system/")}
+    assert {"system/cpu_utilization_percentage", "system/system_memory_usage_megabytes"} <= system
+
+
+def test_real_scene_dataset_is_fingerprinted_by_its_files(tmp_path: Path) -> None:
+    (tmp_path / "cam00.mp4").write_bytes(b"x" * 10)
+    (tmp_path / "poses_bounds.npy").write_bytes(b"y" * 3)
+    inp = scene_dataset("coffee", str(tmp_path), "dynerf", None)
+    want = hashlib.sha256(b"cam00.mp4\x0010\nposes_bounds.npy\x003\n").hexdigest()[:16]
+    assert inp.dataset.digest == want == folder_fingerprint(tmp_path)
+    assert inp.dataset.source_type == "local" and json.loads(inp.dataset.source)["uri"] == str(tmp_path.resolve())
+    (tmp_path / "cam01.mp4").write_bytes(b"z")
+    assert folder_fingerprint(tmp_path) != want
