@@ -15,6 +15,13 @@ slices and (on synthetic scenes) motion error against ground-truth scene flow.
 - **Motion error** (scenes with ``gt/``): the composited 3D velocity (world units/s,
   divided by alpha where alpha > 0.5) against ``gt/flow3d``: mean end-point error on
   moving objects (``gt/objects > 0``) and the mean speed leaking into static regions.
+- **Scores against the ground-truth masks** (``result["scores"]``, named like the metrics
+  the trainer logs): ``lifetime_partition_contrast`` (secret 1: share of the rendered
+  weight on moving-object pixels carried by short-lived Gaussians minus that share on
+  static pixels; 1 = perfect split), ``motion_role_switch`` (secret 2: how much the set of
+  Gaussians rendering the moving objects changes from frame to frame, 0 = the same
+  Gaussians throughout, 1 = a disjoint set every frame) and ``flicker_static`` (secret 4:
+  temporal std of the rendered colour on pixels static for the whole clip).
 
 Run on a finished training run (``config.json`` + ``gaussians.pt``)::
 
@@ -241,6 +248,94 @@ def lifetime_vs_objects(model: FreeTimeGaussians, scene: Scene, gts: dict[int, G
     }
 
 
+# --------------------------------------------------------------------------- scores against ground-truth masks
+
+
+def mask_weights(model: FreeTimeGaussians, cam: Camera, t: float, masks: np.ndarray, backend: str = "auto"
+                 ) -> np.ndarray:
+    """Rendered weight each Gaussian carries on each mask at time ``t``: ``[N, M]`` float64.
+
+    ``masks [M, H, W]`` bool. Entry (i, m) is Σ over the pixels of mask m of Gaussian i's
+    compositing weight T_i α_i, i.e. the gradient of the mask-summed render of all-ones
+    colours with respect to Gaussian i's colour (one render and one backward pass).
+    Column sums equal the rendered alpha summed over each mask.
+    """
+    masks = np.asarray(masks, dtype=bool)
+    frozen = subset_model(model, np.ones(model.params["means"].shape[0], dtype=bool))  # no parameter gradients
+    dev = frozen.params["means"].device
+    ones = torch.ones(frozen.params["means"].shape[0], masks.shape[0], device=dev, requires_grad=True)
+    out, _ = render_view(frozen, cam, t, 0, background=None, backend=backend, colors=ones)
+    sel = torch.as_tensor(np.moveaxis(masks, 0, -1), dtype=out.image.dtype, device=dev)  # [H, W, M]
+    (grad,) = torch.autograd.grad((out.image * sel).sum(), ones)
+    return grad.detach().cpu().double().numpy()
+
+
+def partition_scores(w_dynamic: np.ndarray, w_static: np.ndarray, short: np.ndarray) -> dict[str, float]:
+    """Secret 1: how cleanly short-lived Gaussians render the moving content.
+
+    ``w_dynamic [N]`` / ``w_static [N]``: each Gaussian's rendered weight on moving-object
+    and on static pixels (``mask_weights``, summed over frames); ``short [N]`` bool. Returns
+    the short-lived share of each and their difference ``partition_contrast`` in [-1, 1].
+    """
+    short = np.asarray(short, dtype=bool)
+
+    def share(w: np.ndarray) -> float:
+        total = float(np.sum(w))
+        return float(np.sum(w[short]) / total) if total > 0 else float("nan")
+
+    dyn, sta = share(np.asarray(w_dynamic, float)), share(np.asarray(w_static, float))
+    return {"short_share_dynamic": dyn, "short_share_static": sta, "partition_contrast": dyn - sta}
+
+
+def role_switch_score(weights: np.ndarray) -> float:
+    """Secret 2: mean total-variation distance between consecutive frames' distributions of
+    the weight on the moving objects over Gaussians, ``weights [F, N]`` -> [0, 1].
+
+    0: the same Gaussians, in the same proportions, render the objects in every frame;
+    1: every frame uses Gaussians the previous frame did not. Frames without weight are skipped.
+    """
+    w = np.asarray(weights, dtype=float)
+    w = w[w.sum(axis=1) > 0]
+    if len(w) < 2:
+        return float("nan")
+    p = w / w.sum(axis=1, keepdims=True)
+    return float((0.5 * np.abs(np.diff(p, axis=0)).sum(axis=1)).mean())
+
+
+def static_flicker(frames: np.ndarray, objects: np.ndarray) -> dict[str, float]:
+    """Secret 4: temporal std of the colour over pixels static in every frame.
+
+    ``frames [F, H, W, C]`` in [0, 1], ``objects [F, H, W]`` (0 = static). Per pixel the
+    population std over frames, averaged over channels; returns its mean over the pixels
+    whose mask is 0 throughout (``flicker``) and their count.
+    """
+    static = (np.asarray(objects) == 0).all(axis=0)  # [H, W]
+    std = np.asarray(frames, dtype=np.float64).std(axis=0).mean(axis=-1)  # [H, W]
+    return {"flicker": float(std[static].mean()) if static.any() else float("nan"),
+            "n_static_px": float(static.sum())}
+
+
+def ground_truth_scores(model: FreeTimeGaussians, scene: Scene, cam: int, gt: GroundTruth, short: np.ndarray,
+                        frames: np.ndarray, backend: str = "auto") -> dict[str, float]:
+    """Partition, role-switch and flicker scores of ``model`` in camera ``cam`` over every
+    loaded frame; ``short [N]`` marks the short-lived Gaussians, ``frames [F, H, W, 3]`` the
+    renders. Keys are the names the trainer logs them under."""
+    per_frame = [mask_weights(model, scene.cameras[cam], float(t), np.stack([gt.objects[f] > 0, gt.objects[f] == 0]),
+                              backend) for f, t in enumerate(scene.times)]  # fmt: skip
+    w = np.stack(per_frame)  # [F, N, 2]
+    part = partition_scores(w[..., 0].sum(axis=0), w[..., 1].sum(axis=0), short)
+    flicker = static_flicker(frames, gt.objects)
+    gt_frames = scene.frames(cam).astype(np.float32) / 255.0
+    return {
+        "lifetime_partition_contrast": part["partition_contrast"],
+        "lifetime_short_share_dynamic": part["short_share_dynamic"],
+        "lifetime_short_share_static": part["short_share_static"],
+        "motion_role_switch": role_switch_score(w[..., 0]),
+        "flicker_static": flicker["flicker"],
+        "flicker_static_gt": static_flicker(gt_frames, gt.objects)["flicker"],
+    }
+
+
 # --------------------------------------------------------------------------- run + CLI
 
 
@@ -315,7 +410,8 @@ def run_diagnostics(
 
     # x–t slice
     gt_xt = xt_slice(scene.frames(cam_i), row).astype(np.float32) / 255.0
-    render_xt = xt_slice(render_frames(model, cam, scene.times, sh, bg, backend), row)
+    all_frames = render_frames(model, cam, scene.times, sh, bg, backend)  # [F, H, W, 3]
+    render_xt = xt_slice(all_frames, row)
     files["xt_slice"] = plots.plot_xt_slice(gt_xt, render_xt, cam.name, row, scene.fps, out / "xt_slice.png")
     result["xt_slice_mae"] = float(np.abs(gt_xt - render_xt).mean())
 
@@ -333,6 +429,7 @@ def run_diagnostics(
             if g is not None:
                 gts[c] = g
         result["lifetime"].update(lifetime_vs_objects(model, scene, gts, frac, split))
+        result["scores"] = ground_truth_scores(model, scene, cam_i, gt, frac < split, all_frames, backend)
 
     result["files"] = {k: str(v) for k, v in files.items()}
     (out / "diagnostics.json").write_text(json.dumps(result, indent=2))

@@ -50,7 +50,7 @@ CLAIM_METRICS = (
     "lifetime_long_on_static", "lifetime_short_on_dynamic", "lifetime_median_fraction",
     "lifetime_partition_contrast", "lifetime_short_share_dynamic", "lifetime_short_share_static",
     "motion_epe_dynamic", "motion_leak_static", "motion_role_switch", "xt_slice_mae",
-    "flicker_static", "flicker_static_excess",
+    "flicker_static", "flicker_static_gt",
     "gap_lpips_alex", "gap_lpips_vgg", "gap_ssim", "gap_dssim",
 )
 
