@@ -218,3 +218,14 @@ def test_bad_claims_are_one_line_exit_2(tmp_path: Path, monkeypatch: pytest.Monk
     assert exc.value.code == 2
     lines = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert len(lines) == 1 and words in lines[0] and "claims" in lines[0]
+
+
+def test_every_secret_states_its_claims():
+    """The index needs a row for each secret, the ablation and the CC-per-scene claim."""
+    tests = {name: {c.test for c in load_study(name).claims}
+             for name in ("secret1", "secret2", "secret3", "secret4", "secret5", "ablation", "lpips")}
+    assert all(tests.values()), tests
+    assert "correlation" in tests["secret2"] and "interaction" in tests["secret3"]
+    assert {"mean", "variance"} <= tests["secret5"]
+    per_scene = [c for c in load_study("ablation").claims if c.scenes == ("color_shift",)]
+    assert per_scene and per_scene[0].a == "flow_gate_cc" and per_scene[0].b == "flow_gate"
