@@ -21,7 +21,7 @@ from ftgspp.lpips import weights as weights_mod
 from ftgspp.lpips.weights import flax_to_torch, safe_load_numpy_pickle
 from ftgspp.metrics import evaluate_images, lpips_distance, read_image
 
-LPIPS_REF_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "lpips_ref"
+LPIPS_REF_DIR = Path(__file__).resolve().parent / "assets" / "lpips_ref"  # images, provenance, licence
 
 
 @pytest.fixture(scope="module")

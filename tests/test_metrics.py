@@ -31,7 +31,7 @@ from ftgspp.metrics import (
     ssim_same,
 )
 
-LPIPS_REF_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "lpips_ref"
+LPIPS_REF_DIR = Path(__file__).resolve().parent / "assets" / "lpips_ref"  # images, provenance, licence
 
 BASE_KEYS = ["psnr", "ssim1", "ssim2", "dssim1", "dssim2"]
 LPIPS_KEYS = ["lpips_alex", "lpips_vgg", "lpips_alex_01", "lpips_vgg_01"]
