@@ -29,7 +29,7 @@ from typing import Iterator, Sequence
 import cv2
 import numpy as np
 
-from ftgspp.data.load import SceneSource, kept_cameras
+from ftgspp.data.source import SceneSource, kept_cameras
 from ftgspp.data.scene import Camera
 from ftgspp.errors import InputError
 

@@ -16,38 +16,21 @@ as one ``InputError`` naming the file (or config key) and what is wrong.
 from __future__ import annotations
 
 import hashlib
-import re
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import Callable, Sequence
 
 import cv2
 import numpy as np
 
 from ftgspp.config import DataConfig
+from ftgspp.data.dynerf import read_dynerf
+from ftgspp.data.easyvolcap import read_easyvolcap
 from ftgspp.data.scene import Camera, Scene
+from ftgspp.data.source import SceneSource, match_camera
 from ftgspp.errors import InputError
 
 FORMATS = ("dynerf", "easyvolcap")
 DEFAULT_TEST_CAMERAS = ("cam00",)
-
-# read_frames(camera_index, frame_ids [F]) -> one uint8 [H, W, 3] RGB frame per id, at the
-# camera's full (file) resolution, already undistorted.
-FrameReader = Callable[[int, Sequence[int]], Iterator[np.ndarray]]
-
-
-@dataclass
-class SceneSource:
-    """What a format module reads from a scene folder (metadata only, no frames)."""
-
-    cameras: list[Camera]  # full resolution, in the layout's camera order
-    frame_counts: list[int]  # per camera: frames [0, count) are available
-    limit_files: list[Path]  # per camera: the file that bounds its frame count (for messages)
-    fps: float
-    read_frames: FrameReader
-    fingerprint_files: list[Path] = field(default_factory=list)  # their size + mtime key the cache
-    near: float | None = None
-    far: float | None = None
 
 
 def detect_format(path: str | Path) -> str:
@@ -109,13 +92,8 @@ def load_scene(cfg: DataConfig) -> Scene:
 
 
 def _read_source(fmt: str, root: Path, cfg: DataConfig) -> SceneSource:
-    # imported here: the format modules import SceneSource from this module
     if fmt == "dynerf":
-        from ftgspp.data.dynerf import read_dynerf
-
         return read_dynerf(root, drop_cameras=cfg.drop_cameras)
-    from ftgspp.data.easyvolcap import read_easyvolcap
-
     return read_easyvolcap(root, drop_cameras=cfg.drop_cameras, fps=getattr(cfg, "fps", None))
 
 
@@ -143,39 +121,6 @@ def _frame_range(cfg: DataConfig, source: SceneSource, names: list[str]) -> np.n
                     f"camera {names[i]} has {count} frames, the frame range [{start}, {end}) needs {end}",
                 )
     return np.arange(start, end, dtype=np.int64)
-
-
-def camera_number(name: str) -> int | None:
-    """The camera number in ``"cam07"``, ``"07"`` or ``"7"`` (``7``); None for other names."""
-    m = re.fullmatch(r"(?:cam)?(\d+)", name.strip(), flags=re.IGNORECASE)
-    return int(m.group(1)) if m else None
-
-
-def match_camera(wanted: str, names: Sequence[str]) -> int | None:
-    """Index of camera ``wanted`` in ``names``: exact name first, then the same camera number."""
-    if wanted in names:
-        return list(names).index(wanted)
-    number = camera_number(wanted)
-    if number is not None:
-        for i, name in enumerate(names):
-            if camera_number(name) == number:
-                return i
-    return None
-
-
-def kept_cameras(names: Sequence[str], drop_cameras: Sequence[str], root: Path) -> list[int]:
-    """Indices of ``names`` left after removing ``drop_cameras`` (matched like test cameras)."""
-    dropped = set()
-    for wanted in drop_cameras:
-        i = match_camera(wanted, names)
-        if i is None:
-            raise InputError(
-                "data.drop_cameras", f"camera {wanted!r} not found in {root} (cameras: {', '.join(names)})"
-            )
-        dropped.add(i)
-    if len(dropped) == len(names):
-        raise InputError("data.drop_cameras", f"drops every camera of {root}")
-    return [i for i in range(len(names)) if i not in dropped]
 
 
 def split_cameras(names: Sequence[str], test_cameras: Sequence[str], root: Path) -> tuple[list[int], list[int]]:

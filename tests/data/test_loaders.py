@@ -16,7 +16,8 @@ import pytest
 
 from ftgspp.config import DataConfig
 from ftgspp.data.dynerf import cameras_from_poses_bounds, poses_bounds_from_cameras
-from ftgspp.data.load import detect_format, load_scene, match_camera
+from ftgspp.data.load import detect_format, load_scene
+from ftgspp.data.source import match_camera
 from ftgspp.errors import InputError
 
 try:  # tests/ importable as a package
