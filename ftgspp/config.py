@@ -73,6 +73,9 @@ class StrategyConfig:
     refine_start_iter: int = 500
     refine_stop_iter: int = 25_000
     min_opacity: float = 5e-3
+    # MCMC rule: clamp the shared opacity "after" computing the scale factor (gsplat 1.5.3,
+    # pinned by the official FreeTimeGS++ code: the paper's behaviour) or "before" (gsplat >= 1.6)
+    mcmc_clamp: str = "after"
 
 
 @dataclass

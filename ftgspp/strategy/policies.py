@@ -41,20 +41,33 @@ def choose_relocation(
     return dead, alive[pick]
 
 
+MCMC_CLAMPS = ("after", "before")
+
+
 def mcmc_opacity_scale(
     opacity: torch.Tensor,  # [M] source sigmoid(o)
     scale: torch.Tensor,  # [M, 3] source activated scales
     n: torch.Tensor,  # [M] number of Gaussians sharing the source after relocation (copies + 1)
     min_opacity: float,
+    clamp: str = "after",
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The 3DGS-MCMC rule (Eq. 9): opacity and scale shared by n copies of one Gaussian.
 
     o_new = 1 − (1 − o)^(1/n) and s_new = o / D · s with
     D = Σ_{i=1..n} Σ_{k=0..i−1} C(i−1, k) (−1)^k / √(k+1) · o_new^(k+1).
+
+    ``clamp`` says when o_new is clamped to [min_opacity, 1 − ε]: ``"after"`` computing D
+    (gsplat 1.5.3, which the official FreeTimeGS++ code pins, so the paper's numbers; the
+    default) or ``"before"`` (gsplat >= 1.6). They differ for faint sources: o = 0.006 split
+    two ways gives a scale factor of 1.00 with "after" and 0.60 with "before".
     """
+    if clamp not in MCMC_CLAMPS:
+        raise ValueError(f"unknown MCMC clamp order '{clamp}' (choose from {', '.join(MCMC_CLAMPS)})")
     n = n.clamp(1, MAX_COPIES).to(opacity.dtype)
     eps = torch.finfo(torch.float32).eps
-    o_new = (1.0 - (1.0 - opacity) ** (1.0 / n)).clamp(min_opacity, 1.0 - eps)
+    o_new = 1.0 - (1.0 - opacity) ** (1.0 / n)
+    if clamp == "before":
+        o_new = o_new.clamp(min_opacity, 1.0 - eps)
     denom = torch.zeros_like(o_new)
     n_max = int(n.max().item()) if len(n) else 1
     for i in range(1, n_max + 1):
@@ -63,4 +76,4 @@ def mcmc_opacity_scale(
             coef = math.comb(i - 1, k) * (-1) ** k / math.sqrt(k + 1)
             denom = denom + torch.where(active, coef * o_new ** (k + 1), torch.zeros_like(o_new))
     s_new = (opacity / denom)[:, None] * scale
-    return o_new, s_new
+    return o_new.clamp(min_opacity, 1.0 - eps), s_new

@@ -16,8 +16,9 @@ import torch
 from torch import nn
 
 from ftgspp.config import StrategyConfig
+from ftgspp.errors import InputError
 from ftgspp.strategy.ops import copy_gaussians, reset_moments
-from ftgspp.strategy.policies import POLICIES, choose_relocation, mcmc_opacity_scale
+from ftgspp.strategy.policies import MCMC_CLAMPS, POLICIES, choose_relocation, mcmc_opacity_scale
 
 
 @dataclass
@@ -27,14 +28,14 @@ class Relocator:
     cfg: StrategyConfig
 
     def __post_init__(self) -> None:
-        if self.cfg.relocation not in POLICIES:
-            from ftgspp.errors import InputError
+        for key, value, allowed in (("relocation", self.cfg.relocation, POLICIES),
+                                    ("mcmc_clamp", self.cfg.mcmc_clamp, MCMC_CLAMPS)):
+            if value not in allowed:
+                raise InputError(f"strategy.{key}", f"unknown value '{value}' (choose from {', '.join(allowed)})")
 
-            raise InputError("strategy.relocation", f"unknown policy '{self.cfg.relocation}' (choose from {', '.join(POLICIES)})")
-
-    def initialize_state(self, n: int) -> dict[str, torch.Tensor]:
-        """Per-Gaussian accumulators of the 2D mean-gradient norm."""
-        return {"grad2d": torch.zeros(n), "count": torch.zeros(n)}
+    def initialize_state(self, n: int, device: torch.device | str = "cpu") -> dict[str, torch.Tensor]:
+        """Per-Gaussian accumulators of the 2D mean-gradient norm, on the parameters' device."""
+        return {"grad2d": torch.zeros(n, device=device), "count": torch.zeros(n, device=device)}
 
     @torch.no_grad()
     def accumulate(self, state: dict[str, torch.Tensor], means2d_grad: torch.Tensor, radii: torch.Tensor) -> None:
@@ -70,7 +71,8 @@ class Relocator:
         if policy == "mcmc":
             n = torch.bincount(sources, minlength=len(opacity))[sources] + 1
             o_new, s_new = mcmc_opacity_scale(
-                opacity.to(device)[sources], torch.exp(params["scales"].detach()[sources]), n, self.cfg.min_opacity
+                opacity.to(device)[sources], torch.exp(params["scales"].detach()[sources]), n, self.cfg.min_opacity,
+                self.cfg.mcmc_clamp,
             )
             params["opacities"].data[sources] = torch.logit(o_new)
             params["scales"].data[sources] = torch.log(s_new)

@@ -1,10 +1,15 @@
 """Relocation policies: count kept, moments reset, and what each policy does to o and s."""
 
 
+import math
+
 import numpy as np
 import pytest
 import torch
+from scipy import stats
 from torch import nn
+
+from ftgspp.errors import InputError
 
 from ftgspp.config import StrategyConfig
 from ftgspp.strategy import Relocator
@@ -29,32 +34,53 @@ def make_params(n=50, n_dead=10, seed=0):
     return params, opts
 
 
+def mcmc_by_hand(o: float, s: float, n: int, min_opacity: float, clamp: str) -> tuple[float, float]:
+    """Eq. 9 of 3DGS-MCMC written out in plain Python floats (the independent oracle)."""
+    o_new = 1.0 - (1.0 - o) ** (1.0 / n)
+    if clamp == "before":
+        o_new = min(max(o_new, min_opacity), 1.0 - 1.1920929e-07)
+    d = 0.0
+    for i in range(1, n + 1):
+        for k in range(i):
+            d += math.comb(i - 1, k) * (-1) ** k / math.sqrt(k + 1) * o_new ** (k + 1)
+    return min(max(o_new, min_opacity), 1.0 - 1.1920929e-07), o / d * s
+
+
 @pytest.mark.parametrize("policy", ["mcmc", "exact_copy", "partial_copy"])
 def test_policy_semantics(policy):
     params, opts = make_params()
     before = {k: v.detach().clone() for k, v in params.items()}
     reloc = Relocator(StrategyConfig(relocation=policy))
     state = reloc.initialize_state(50)
-    gen = torch.Generator().manual_seed(1)
-    dead, sources = choose_relocation(torch.sigmoid(before["opacities"]), state["grad2d"], 5e-3,
-                                      torch.Generator().manual_seed(1))
-    moved = reloc.step(params, opts, state, gen)
-    assert moved == 10 and torch.equal(dead, torch.arange(10))
+    moved = reloc.step(params, opts, state, torch.Generator().manual_seed(1))
+    dead = torch.arange(10)  # make_params kills the first ten
+    assert moved == 10
     assert all(v.shape[0] == 50 for v in params.values())  # count kept
-    # positions and velocities always come from the sources
-    torch.testing.assert_close(params["means"][dead], before["means"][sources])
-    torch.testing.assert_close(params["velocities"][dead], before["velocities"][sources])
+    # Identify each destination's source by its (unique) position, without the sampler.
+    match = (params["means"].detach()[dead, None, :] == before["means"][None, :, :]).all(-1)  # [10, 50]
+    assert torch.all(match.sum(1) == 1), "every destination is an exact positional copy of one Gaussian"
+    sources = match.float().argmax(1)
+    assert torch.all(sources >= 10), "sources are alive Gaussians"
+    torch.testing.assert_close(params["velocities"][dead], before["velocities"][sources], rtol=0, atol=0)
     if policy == "exact_copy":
-        torch.testing.assert_close(params["opacities"][dead], before["opacities"][sources])
-        torch.testing.assert_close(params["scales"][dead], before["scales"][sources])
+        torch.testing.assert_close(params["opacities"][dead], before["opacities"][sources], rtol=0, atol=0)
+        torch.testing.assert_close(params["scales"][dead], before["scales"][sources], rtol=0, atol=0)
     elif policy == "partial_copy":
-        torch.testing.assert_close(params["opacities"][dead], before["opacities"][dead])
-        torch.testing.assert_close(params["scales"][dead], before["scales"][dead])
-    else:  # mcmc: copies and sources share the reduced opacity
-        o_src = torch.sigmoid(before["opacities"][sources])
-        o_new = torch.sigmoid(params["opacities"][dead])
-        assert torch.all(o_new <= o_src + 1e-6)
-        torch.testing.assert_close(params["opacities"][dead], params["opacities"][sources])
+        torch.testing.assert_close(params["opacities"][dead], before["opacities"][dead], rtol=0, atol=0)
+        torch.testing.assert_close(params["scales"][dead], before["scales"][dead], rtol=0, atol=0)
+    else:  # mcmc: sources and their copies share the opacity and scale of Eq. 9
+        counts = torch.bincount(sources, minlength=50)
+        for src in sources.unique().tolist():
+            o_src = torch.sigmoid(before["opacities"][src]).item()
+            for k in range(3):
+                s_src = torch.exp(before["scales"][src, k]).item()
+                o_exp, s_exp = mcmc_by_hand(o_src, s_src, int(counts[src]) + 1, 5e-3, "after")
+                for idx in [src] + dead[sources == src].tolist():
+                    assert torch.sigmoid(params["opacities"][idx]).item() == pytest.approx(o_exp, rel=1e-4)
+                    assert torch.exp(params["scales"][idx, k]).item() == pytest.approx(s_exp, rel=1e-4)
+        untouched = torch.ones(50, dtype=torch.bool)
+        untouched[torch.cat([dead, sources])] = False
+        torch.testing.assert_close(params["scales"][untouched], before["scales"][untouched], rtol=0, atol=0)
     # moments of moved Gaussians (destinations and sources) are zero, others untouched
     moved_idx = torch.cat([dead, sources]).unique()
     for name, opt in opts.items():
@@ -64,6 +90,39 @@ def test_policy_semantics(policy):
         others = torch.ones(50, dtype=torch.bool)
         others[moved_idx] = False
         assert torch.all(st["exp_avg_sq"][others] > 0)
+
+
+@pytest.mark.parametrize(("clamp", "factor"), [("after", 0.99956), ("before", 0.60106)])
+def test_mcmc_clamp_order_against_hand_computed_values(clamp, factor):
+    """o = 0.006 split two ways: o_new = 1 - sqrt(0.994) = 0.0030045 is below min_opacity 0.005.
+    gsplat 1.5.3 ("after") takes D = 2 o_new - o_new^2/sqrt(2) from the unclamped value:
+    s_new/s = 0.006 / 0.0060026 = 0.99956; gsplat >= 1.6 ("before") clamps first:
+    0.006 / (0.01 - 0.005^2/sqrt(2)) = 0.60106. Both store the clamped opacity 0.005."""
+    o_new, s_new = mcmc_opacity_scale(torch.tensor([0.006], dtype=torch.float64),
+                                      torch.ones(1, 3, dtype=torch.float64), torch.tensor([2]), 5e-3, clamp)
+    assert s_new[0, 0].item() == pytest.approx(factor, abs=1e-5)
+    assert o_new.item() == pytest.approx(0.005)
+    assert mcmc_by_hand(0.006, 1.0, 2, 5e-3, clamp)[1] == pytest.approx(factor, abs=1e-5)
+
+
+def test_relocator_defaults_to_the_papers_clamp_order():
+    assert StrategyConfig().mcmc_clamp == "after"
+    with pytest.raises(InputError, match="strategy.mcmc_clamp"):
+        Relocator(StrategyConfig(mcmc_clamp="sometimes"))
+
+
+def test_sources_are_drawn_in_proportion_to_opacity_plus_gradient_share():
+    """p = o/Σo + g/Σg (normalised) over the alive set, with unequal opacities; chi-square."""
+    n_dead, opacity = 30_000, torch.tensor([0.1, 0.3, 0.6])
+    all_opacity = torch.cat([torch.full((n_dead,), 1e-4), opacity])
+    for grad, expected in ((torch.zeros(3), [0.1, 0.3, 0.6]), (torch.tensor([0.5, 0.5, 0.0]), [0.3, 0.4, 0.3])):
+        all_grad = torch.cat([torch.zeros(n_dead), grad])
+        dead, src = choose_relocation(all_opacity, all_grad, 5e-3, torch.Generator().manual_seed(0))
+        assert torch.equal(dead, torch.arange(n_dead))
+        counts = torch.bincount(src - n_dead, minlength=3).numpy()
+        assert counts.sum() == n_dead
+        assert stats.chisquare(counts, np.array(expected) * n_dead).pvalue > 1e-3
+        assert np.abs(counts / n_dead - expected).max() < 0.01
 
 
 def test_sources_follow_opacity_and_gradient_score():
