@@ -14,16 +14,18 @@ import hashlib
 import json
 from typing import Any
 
+import torch
+
 from ftgspp.config import TrainConfig
 
 # Keys that never change what a run computes: output location, logging cadence,
-# thread count, tracking destination, caches.
+# tracking destination, caches. The thread count is NOT one of them: CPU reductions sum in
+# a thread-count dependent order, so it is hashed (as the count actually used, see below).
 HASH_EXCLUDED = frozenset(
     {
         "out_dir",
         "progress",
         "resume",
-        "threads",
         "log_every",
         "checkpoint_every",
         "tracking.uri",
@@ -46,9 +48,15 @@ def _flatten(prefix: str, value: Any, out: dict[str, str]) -> None:
 
 
 def flatten_config(cfg: TrainConfig) -> dict[str, str]:
-    """Dotted keys of every option, values as strings (``lr.means -> '0.00016'``)."""
+    """Dotted keys of every option, values as strings (``lr.means -> '0.00016'``).
+
+    ``threads=0`` ("leave torch's default") is replaced by the count this process would
+    train with, ``torch.get_num_threads()``, so the params and the hash say what was used.
+    """
     out: dict[str, str] = {}
     _flatten("", dataclasses.asdict(cfg), out)
+    if out.get("threads") == "0":
+        out["threads"] = str(torch.get_num_threads())
     return out
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import torch
+
 from ftgspp.config import TrainConfig
 from harness.confighash import HASH_EXCLUDED, config_hash, flatten_config
 
@@ -23,7 +25,7 @@ def test_flatten_uses_dotted_keys_and_strings() -> None:
 
 def test_hash_ignores_where_and_how_verbosely_a_run_writes() -> None:
     base = TrainConfig()
-    other = dataclasses.replace(base, out_dir="/elsewhere", threads=7, log_every=3, progress=False)
+    other = dataclasses.replace(base, out_dir="/elsewhere", log_every=3, progress=False)
     other.tracking.uri = "http://127.0.0.1:5000"
     assert _hash(base) == _hash(other)
 
@@ -42,3 +44,18 @@ def test_hash_changes_with_results_relevant_keys_and_scene_content() -> None:
     seen.add(_hash(base, {"preset": "default", "seed": 1}))
     assert len(seen) == 7
     assert _hash(base) == _hash(TrainConfig()), "deterministic"
+
+
+def test_thread_count_is_part_of_the_hash_and_params() -> None:
+    """CPU reductions depend on the thread count, so runs with different counts are different
+    experiments; ``threads=0`` (torch's default) is recorded as the count actually in use."""
+    base = TrainConfig()
+    one, two = dataclasses.replace(base, threads=1), dataclasses.replace(base, threads=2)
+    assert _hash(one) != _hash(two)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        assert flatten_config(base)["threads"] == "1"
+        assert _hash(base) == _hash(one)
+    finally:
+        torch.set_num_threads(before)
