@@ -6,8 +6,9 @@ k nearest neighbours in keyframe k+1's point set, ``v = mean((x_next - x) / dt)`
 uses the previous keyframe backwards (``dt < 0``), which gives ``(x - x_prev) / |dt|``. A
 scene with a single keyframe gets zero velocity.
 
-``cfg.velocity == "flow"`` (flow-guided velocity, DESIGN.md section 4) is a later issue and
-is rejected with an ``InputError`` for now.
+``cfg.velocity == "flow"`` selects the flow-guided velocity of FreeTimeGS++
+(``ftgspp.init.flow_velocity``), which starts from these kNN velocities and replaces them
+where the optical flow is valid; any other value is an ``InputError``.
 """
 
 from __future__ import annotations

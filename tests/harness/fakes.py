@@ -3,8 +3,9 @@
 ``fake_train`` follows the trainer's contract (``train(cfg, scene, tracker) -> RunResult``
 as called through ``harness.train_app.run_training``): it logs a loss curve and a
 diagnostic PNG through the tracker and returns metrics that depend on the seed and the
-variant. ``init.velocity=flow`` without the gate raises ``InputError`` (an unimplemented
-feature), ``lr.scale >= 100`` diverges, and a file ``crash_seed<N>`` in the working directory makes
+variant. Input errors are the real trainer's: the configuration goes through the same
+validation (``Relocator``, so ``strategy.relocation=teleport`` raises ``InputError``),
+``lr.scale >= 100`` diverges, and a file ``crash_seed<N>`` in the working directory makes
 the run with that seed crash once (the file is consumed). ``FAKE_TRAIN_SLEEP`` (seconds)
 makes every run take that long.
 """
@@ -17,7 +18,7 @@ import time
 from pathlib import Path
 
 from ftgspp.config import TrainConfig
-from ftgspp.errors import InputError
+from ftgspp.strategy import Relocator
 from ftgspp.tracking import RunResult, Tracker
 
 LOSS_STEPS = 40  # per-step loss values each run logs
@@ -30,8 +31,7 @@ def fake_psnr(cfg: TrainConfig) -> float:
 
 
 def fake_train(cfg: TrainConfig, out_dir: Path, tracker: Tracker) -> RunResult:
-    if cfg.init.velocity == "flow" and cfg.model.gate is False:
-        raise InputError("init.velocity", "flow-guided velocity is not implemented yet")
+    Relocator(cfg.strategy)  # the trainer's own validation: unknown policy -> InputError
     crash = Path(f"crash_seed{cfg.seed}")
     if crash.exists():
         crash.unlink()

@@ -55,9 +55,9 @@ def test_first_invocation_records_every_outcome(toy) -> None:
     for rec in toy["records"]:
         by_variant.setdefault(rec.tags["variant"], []).append(rec)
     assert {v: sorted(r.status for r in recs) for v, recs in by_variant.items()} == {
-        "baseline": ["FINISHED"] * 2, "cc": ["FINISHED"] * 2, "flow": ["FAILED"] * 2, "wild": ["FAILED"] * 2}
-    for rec in by_variant["flow"]:
-        assert rec.tags["failure"] == "input_error" and "flow-guided velocity is not implemented" in rec.tags["error"]
+        "baseline": ["FINISHED"] * 2, "cc": ["FINISHED"] * 2, "teleport": ["FAILED"] * 2, "wild": ["FAILED"] * 2}
+    for rec in by_variant["teleport"]:
+        assert rec.tags["failure"] == "input_error" and "strategy.relocation" in rec.tags["error"]
     for rec in by_variant["wild"]:
         assert rec.tags["failure"] == "diverged"
 
@@ -83,7 +83,7 @@ def test_child_runs_carry_tags_params_metrics_and_artifacts(toy) -> None:
 def test_rerun_picks_up_exactly_the_failed_runs(toy) -> None:
     second = toy["second"]
     assert (second.skipped, second.launched) == (4, 4)
-    assert sorted(r["label"].split("/")[0] for r in second.results) == ["flow", "flow", "wild", "wild"]
+    assert sorted(r["label"].split("/")[0] for r in second.results) == ["teleport", "teleport", "wild", "wild"]
     assert len(_runs("study")) == 2
 
 
