@@ -1,6 +1,8 @@
 """Claims in reports: the "Claims" table of ``study report NAME`` and ``reports/index.md``.
 
-``claims_markdown`` / ``claims_latex`` render the frame ``harness.claims.evaluate`` returns.
+``claims_markdown`` / ``claims_latex`` render the frame ``harness.claims.evaluate`` returns;
+``correlation_plot`` draws the runs behind a correlation claim (secret 2: motion error
+against PSNR over every run and variant).
 ``write_claims_index`` (``study index``) builds the page a reader opens first: one row per
 claim of every study that has runs in the store (the paper's claim and number, our effect
 ± 95% CI with n and Holm p, the verdict, a link to the study's report), then the
@@ -18,7 +20,8 @@ from typing import Callable
 import pandas as pd
 
 from harness import claims as claims_mod
-from harness.tables import decimals, latex_escape
+from harness.studies import ClaimSpec
+from harness.tables import decimals, latex_escape, pretty
 
 VERDICT_MARK = {claims_mod.REPRODUCED: "✅ reproduced", claims_mod.CONTRADICTED: "❌ contradicted",
                 claims_mod.INCONCLUSIVE: "❔ inconclusive", claims_mod.NOT_TESTED: "— not tested"}
@@ -54,9 +57,12 @@ def effect_text(row: pd.Series) -> str:
 
 
 def needed_text(row: pd.Series) -> str:
+    """Runs per arm (correlations: runs) for 80% power, for inconclusive claims only."""
     if row.verdict != claims_mod.INCONCLUSIVE or math.isnan(row.n_needed):
         return ""
-    return "∞ (no effect)" if math.isinf(row.n_needed) else f"{int(row.n_needed)}"
+    if math.isinf(row.n_needed):
+        return "none (observed |r| ≥ threshold)" if row.test == "correlation" else "none (no effect observed)"
+    return f"{int(row.n_needed)} runs" if row.test == "correlation" else f"{int(row.n_needed)}"
 
 
 def claims_markdown(frame: pd.DataFrame) -> str:
@@ -88,10 +94,41 @@ def claims_latex(frame: pd.DataFrame, study: str) -> str:
              rf"\label{{tab:{study}-claims}}", r"\begin{tabular}{llllrl}", r"\toprule",
              r"Claim & Comparison & Effect [95\% CI] & $n$ & $p_\mathrm{Holm}$ & Verdict \\", r"\midrule"]
     for _, r in frame.iterrows():
-        lines.append(" & ".join([latex_escape(r.id), latex_escape(r.comparison), latex_escape(effect_text(r)),
+        lines.append(" & ".join([latex_escape(r.id), latex_escape(r.comparison).replace("−", "$-$"),
+                                 latex_escape(effect_text(r)),
                                  latex_escape(_text(r.n)), latex_escape(_p(r.p_holm)), r.verdict]) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
     return "\n".join(lines)
+
+
+def correlation_plot(df: pd.DataFrame, claim: ClaimSpec, r: float, path: Path) -> Path:
+    """Scatter of ``claim.versus`` against ``claim.metric`` over the finished runs: colour =
+    variant, marker = scene; the title gives the within-scene r the claim is tested on."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = df[(df.status == "FINISHED")]
+    ok = ok[ok[claim.metric].notna() & ok[claim.versus].notna()] if {claim.metric, claim.versus} <= set(ok) else ok[:0]
+    fig, ax = plt.subplots(figsize=(6.4, 4.4), constrained_layout=True)
+    markers = "osD^vP*X"
+    for j, scene in enumerate(dict.fromkeys(ok.scene)):
+        for i, variant in enumerate(dict.fromkeys(ok.variant)):
+            sub = ok[(ok.scene == scene) & (ok.variant == variant)]
+            if len(sub):
+                ax.scatter(sub[claim.metric], sub[claim.versus], color=f"C{i}", marker=markers[j % len(markers)],
+                           label=f"{variant} / {scene}", alpha=0.8)
+    ax.set_xlabel(pretty(claim.metric))
+    ax.set_ylabel(pretty(claim.versus))
+    ax.set_title(f"{claim.id}: every run (within-scene r = {r:+.2f}, n = {len(ok)})", fontsize=10)
+    ax.grid(alpha=0.3)
+    if len(ok):
+        ax.legend(fontsize=7, loc="best")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
 
 
 # --------------------------------------------------------------------------- reports/index.md
@@ -122,7 +159,10 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
             ours = "—" if math.isnan(r.effect) else f"{effect_text(r)} ({r.n}, p = {_p(r.p_holm)})"
             note = f" ({r.note})" if r.note else ""
             need = needed_text(r)
-            need = f"; ≈{need} runs/arm for 80% power" if need else ""
+            if need.startswith("none"):
+                need = f"; no n gives 80% power: {need[6:-1]}"
+            elif need:
+                need = f"; ≈{need}{'' if need.endswith('runs') else ' runs/arm'} for 80% power"
             lines.append(f"| {e.study} | {r.statement} | {_text(r.paper_number)} | {ours} |"
                          f" {VERDICT_MARK[r.verdict]}{note}{need} | [{e.study}]({e.report}) |")
         if e.frame.empty:

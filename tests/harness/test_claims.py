@@ -71,6 +71,17 @@ def test_pure_noise_is_inconclusive_at_the_expected_rate():
     assert rate[C.INCONCLUSIVE] == pytest.approx(0.95, abs=0.015)
 
 
+def test_variance_test_on_equal_spreads_errs_at_about_alpha():
+    rng = np.random.default_rng(9)
+    verdicts = []
+    for _ in range(600):
+        res = C.compare_variances(*rng.normal(0, 1, (2, 10)))
+        verdicts.append(C.verdict(res.p, res.effect, "lower"))
+    decided = 1 - verdicts.count(C.INCONCLUSIVE) / len(verdicts)
+    assert 0.015 < decided < 0.09  # 5% nominal (binomial sd 0.009); Brown–Forsythe is a little conservative
+    assert verdicts.count(C.REPRODUCED) and verdicts.count(C.CONTRADICTED)  # both directions err
+
+
 def test_noise_through_the_whole_path_and_needed_n():
     rng = np.random.default_rng(2)
     df = runs({("baseline", "studio"): rng.normal(30, 0.2, 5), ("cc", "studio"): rng.normal(30, 0.2, 5)})

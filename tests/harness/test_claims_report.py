@@ -29,6 +29,8 @@ MINI = {
          "b": "baseline", "expect": "lower"},
         {"id": "motion", "claim": "Not logged by the fake.", "metric": "flicker_static", "test": "mean", "a": "cc",
          "b": "baseline", "expect": "lower"},
+        {"id": "psnr_ssim", "claim": "PSNR and SSIM are weakly related.", "metric": "psnr", "versus": "ssim1",
+         "test": "correlation", "expect": "weak"},
     ],
     "profiles": {
         "quick": {"seeds": 3, "overrides": ["profile=smoke"], "expected_runtime": "seconds", "command": "study run mini",
@@ -72,7 +74,7 @@ def test_index_page_has_a_row_per_claim_charts_and_missing_studies():
     rows = [line for line in page.splitlines() if line.startswith("| secret5 |")]
     assert len(rows) == 3 and all("[secret5](secret5/index.md)" in r for r in rows)
     assert f"({f.n[0]}, p = " in rows[0] and "+0.3 dB" in rows[0] and "reproduced" in rows[0]
-    assert "runs/arm for 80% power" in rows[1]
+    assert "runs/arm for 80% power" in rows[1] and "−" not in claims_latex(f, "s")
     assert "| lpips | (no claims stated)" in page
     assert "![Speed](speed_accuracy/speed_accuracy.png)" in page and "`secret3`" in page
     assert "Runs made by code abc123." in page and "More than one" not in page
@@ -96,16 +98,23 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
               echo=lambda s: None)
     write_report("mini", studies_dir=studies, reports_root=Path("reports"), echo=lambda s: None)
     claims = pd.read_csv("reports/mini/claims.csv")
-    assert list(claims.id) == ["cc_mean", "cc_spread", "motion"]
+    assert list(claims.id) == ["cc_mean", "cc_spread", "motion", "psnr_ssim"]
     assert claims.verdict[2] == C.NOT_TESTED and claims.n[0] == "3 vs 3"
     assert claims.effect[0] == pytest.approx(0.5)  # the fake adds 0.5 dB with colour correction
     index = Path("reports/mini/index.md").read_text()
     assert "## Claims" in index and "cc_mean" in index
+    assert Path("reports/mini/claim_psnr_ssim.png").read_bytes()[:4] == b"\x89PNG"
+    assert "](claim_psnr_ssim.png)" in index and claims.n[3] == "6 runs"
     assert "## Claims" in Path("reports/mini/table.md").read_text()
     assert "tab:mini-claims" in Path("reports/mini/table.tex").read_text()
 
+    from harness.reports_plan import plan_frame
+
+    plan = plan_frame().set_index("study")
+    assert plan.loc["mini", ["planned", "finished", "to_run"]].tolist() == [6, 6, 0]  # make reports resumes
+    assert plan.loc["later", ["finished", "to_run"]].tolist() == [0, 6]
     assert main(["index"]) == 0
     page = Path("reports/index.md").read_text()
-    assert sum(line.startswith("| mini |") for line in page.splitlines()) == 3
+    assert sum(line.startswith("| mini |") for line in page.splitlines()) == 4
     assert "[mini](mini/index.md)" in page and "`later`: `study run later --profile quick`" in page
     assert main(["index"]) == 0 and Path("reports/index.md").read_text() == page  # same store, same page
