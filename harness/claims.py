@@ -43,7 +43,7 @@ POWER = 0.8
 CONFIDENCE = 0.95
 REPRODUCED, CONTRADICTED, INCONCLUSIVE, NOT_TESTED = "reproduced", "contradicted", "inconclusive", "not tested"
 COLUMNS = ["id", "statement", "paper_number", "metric", "test", "comparison", "method", "n", "effect", "ci_low",
-           "ci_high", "stat_name", "statistic", "p", "p_holm", "verdict", "n_needed", "note"]
+           "ci_high", "stat_name", "statistic", "p", "p_holm", "verdict", "n_needed", "note", "detail"]
 
 
 @dataclass
@@ -58,6 +58,7 @@ class Comparison:
     statistic: float
     p: float
     needed: Callable[[], float] = field(default=lambda: math.nan, repr=False)  # runs per arm for 80% power
+    detail: str = ""  # e.g. the variance split of a variance claim
     strong: bool = False  # correlation only: the CI lies wholly outside +-threshold
 
 
@@ -155,17 +156,25 @@ def _std_diff(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
     return np.std(x, ddof=1, axis=axis) - np.std(y, ddof=1, axis=axis)
 
 
-def compare_variances(a: np.ndarray, b: np.ndarray, seed: int = 0) -> Comparison:
+def compare_variances(a: np.ndarray, b: np.ndarray, seed: int = 0, names: tuple[str, str] = ("a", "b")
+                      ) -> Comparison:
     """std(``a``) − std(``b``): Brown–Forsythe test (Levene, median centre), percentile
-    bootstrap CI of the std difference (fixed seed: reports are reproducible)."""
+    bootstrap CI of the std difference (fixed seed: reports are reproducible). ``detail``
+    gives both variances and, when ``a`` varies more, the share of its variance ``b`` lacks
+    (fixed vs free initialisation: the initialisation's share)."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     res = stats.levene(a, b, center="median")
     boot = stats.bootstrap((a, b), _std_diff, n_resamples=4000, method="percentile",
                            confidence_level=CONFIDENCE, rng=np.random.default_rng(seed))  # fmt: skip
-    ratio = a.var(ddof=1) / b.var(ddof=1) if b.var(ddof=1) > 0 else math.nan
+    va, vb = a.var(ddof=1), b.var(ddof=1)
+    ratio = va / vb if vb > 0 else math.nan
+    # b nested in a (fixed vs free init): the part of a's variance b does not have
+    na, nb = names
+    split = f"var {na} = {va:.3g}, var {nb} = {vb:.3g}" + (
+        f"; {1 - vb / va:.0%} of {na}'s variance is not in {nb}" if va > vb else "")
     return Comparison("Brown–Forsythe (Levene, median)", f"{len(a)} vs {len(b)}", float(_std_diff(a, b)),
                       (float(boot.confidence_interval.low), float(boot.confidence_interval.high)), "W",
-                      float(res.statistic), float(res.pvalue), lambda: n_for_variance_test(ratio))
+                      float(res.statistic), float(res.pvalue), lambda: n_for_variance_test(ratio), split)
 
 
 def compare_interaction(d1: np.ndarray, d2: np.ndarray) -> Comparison:
@@ -254,7 +263,7 @@ def compare(df: pd.DataFrame, claim: ClaimSpec) -> Comparison:
     if len(a) < 2 or (b is not None and len(b) < 2):
         raise ValueError(f"{len(a)} vs {0 if b is None else len(b)} finished runs (need 2 each)")
     if claim.test == "variance":
-        return compare_variances(a, b)
+        return compare_variances(a, b, names=(claim.a, claim.b))
     return compare_means(a, b, paired=False)
 
 
@@ -288,7 +297,7 @@ def evaluate(df: pd.DataFrame, claims: tuple[ClaimSpec, ...] | list[ClaimSpec], 
         row = {"id": c.id, "statement": c.statement, "paper_number": c.paper_number, "metric": c.metric,
                "test": c.test, "comparison": comparison_text(c), "method": "", "n": "", "effect": math.nan,
                "ci_low": math.nan, "ci_high": math.nan, "stat_name": "", "statistic": math.nan, "p": math.nan,
-               "p_holm": math.nan, "verdict": NOT_TESTED, "n_needed": math.nan, "note": _missing(df, c)}
+               "p_holm": math.nan, "verdict": NOT_TESTED, "n_needed": math.nan, "note": _missing(df, c), "detail": ""}
         res = None
         if not row["note"]:
             try:
@@ -297,7 +306,7 @@ def evaluate(df: pd.DataFrame, claims: tuple[ClaimSpec, ...] | list[ClaimSpec], 
                 row["note"] = str(err)
         if res is not None:
             row.update(method=res.method, n=res.n, effect=res.effect, ci_low=res.ci[0], ci_high=res.ci[1],
-                       stat_name=res.stat_name, statistic=res.statistic, p=res.p)
+                       stat_name=res.stat_name, statistic=res.statistic, p=res.p, detail=res.detail)
             if not np.isfinite(res.p):
                 row["note"] = "no spread in the data: the test is undefined"
         rows.append(row)

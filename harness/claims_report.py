@@ -74,7 +74,8 @@ def claims_markdown(frame: pd.DataFrame) -> str:
     for r in frame.itertuples():
         stat = f"{r.stat_name} = {r.statistic:.2f}" if not math.isnan(r.statistic) else "—"
         verdict = VERDICT_MARK[r.verdict] + (f" ({r.note})" if r.note else "")
-        lines.append(f"| **{r.id}**: {r.statement} | {_text(r.paper_number)} | {r.comparison} (`{r.metric}`) |"
+        detail = f"; {r.detail}" if r.detail else ""
+        lines.append(f"| **{r.id}**: {r.statement} | {_text(r.paper_number)} | {r.comparison} (`{r.metric}`{detail}) |"
                      f" {effect_text(pd.Series(r._asdict()))} | {_text(r.n)} | {stat} | {_p(r.p_holm)} |"
                      f" {verdict} | {needed_text(pd.Series(r._asdict()))} |")
     methods = sorted({m for m in frame.method if m})

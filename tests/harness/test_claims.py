@@ -122,6 +122,9 @@ def test_variance_claim_uses_brown_forsythe_equal_to_scipy_and_its_definition():
     assert row.effect == pytest.approx(a.std(ddof=1) - b.std(ddof=1))
     assert row.ci_low <= row.effect <= row.ci_high
     assert row.verdict == C.REPRODUCED  # cc's spread is lower, as claimed
+    flipped = C.evaluate(df, [claim(test="variance", expect="higher", a="baseline", b="cc")]).iloc[0]
+    share = 1 - a.var(ddof=1) / b.var(ddof=1)  # fixed vs free init: the initialisation's share of the variance
+    assert f"{share:.0%} of baseline's variance is not in cc" in flipped.detail
 
 
 def test_variance_pooled_over_scenes_ignores_scene_means():
