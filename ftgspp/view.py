@@ -1,6 +1,10 @@
 """Render a ``FreeTimeGaussians`` model from a ``Camera`` at a time t.
 
 Glue between the model (4D parameters), the SH colour model and the rasterizer backends.
+On the ``cpu`` backend, time evaluation, SH colour and projection run as one fused Numba
+node (``render.prepare``); every other backend composes the PyTorch modules
+(``model.at_time``, ``render.sh.eval_sh``, ``render.project``), and ``reference`` stays the
+pure-autograd oracle of both.
 """
 
 from __future__ import annotations
@@ -9,7 +13,7 @@ import torch
 
 from ftgspp.data.scene import Camera
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
-from ftgspp.render import RenderOutput, render
+from ftgspp.render import RenderOutput, render, resolve_backend
 from ftgspp.render.sh import eval_sh
 
 
@@ -28,14 +32,48 @@ def render_view(
     backend: str = "auto",
     colors: torch.Tensor | None = None,  # [N, D] to composite instead of SH colours
 ) -> tuple[RenderOutput, GaussiansAt]:
-    """Render ``model`` at time ``t`` seconds; returns the render and the Gaussians used."""
-    device = model.params["means"].device
-    viewmat, K, centre = camera_tensors(cam, device)
+    """Render ``model`` at time ``t`` seconds; returns the render and the Gaussians used.
+
+    ``out.means2d.grad`` holds the screen-space gradient after ``backward()``.
+    """
+    means = model.params["means"]
+    viewmat, K, centre = camera_tensors(cam, means.device)
+    name = resolve_backend(backend, means.device)
+    if name == "cpu" and means.device.type == "cpu" and means.dtype == torch.float32:
+        return _render_view_fused(model, cam, t, sh_degree, background, colors, viewmat, K, centre)
     g = model.at_time(t)
     if colors is None:
         dirs = g.means - centre
         dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
         colors = eval_sh(sh_degree, g.sh, dirs)
     out = render(g.means, g.quats, g.scales, g.opacities, colors, viewmat, K, cam.width, cam.height,
-                 background=background, backend=backend)
+                 background=background, backend=name)
     return out, g
+
+
+def _render_view_fused(
+    model: FreeTimeGaussians,
+    cam: Camera,
+    t: float,
+    sh_degree: int,
+    background: torch.Tensor | None,
+    colors: torch.Tensor | None,
+    viewmat: torch.Tensor,
+    K: torch.Tensor,
+    centre: torch.Tensor,
+) -> tuple[RenderOutput, GaussiansAt]:
+    """The ``cpu`` path: fused prepare node, then the Numba rasterizer."""
+    from ftgspp.render.cpu import rasterize
+    from ftgspp.render.prepare import prepare
+
+    p, cfg = model.params, model.cfg
+    prep = prepare(p, t, viewmat, K, centre, cam.width, cam.height, sh_degree if colors is None else 0,
+                   cfg.max_duration, cfg.gate, cfg.gate_gamma)  # fmt: skip
+    means2d = prep.means2d
+    if means2d.requires_grad:
+        means2d.retain_grad()
+    image, alpha, depth = rasterize(means2d, prep.conics, prep.colors if colors is None else colors, prep.opacities,
+                                    prep.depths, prep.radii, cam.width, cam.height, background)  # fmt: skip
+    g = GaussiansAt(means=prep.means, quats=p["quats"], scales=torch.exp(p["scales"]), opacities=prep.opacities,
+                    sh=torch.cat([p["sh0"], p["shN"]], dim=1), temporal=prep.temporal)  # fmt: skip
+    return RenderOutput(image, alpha, depth, means2d, prep.radii, prep.depths), g

@@ -1,0 +1,530 @@
+"""Numba kernels of the fused per-Gaussian stage: time evaluation, SH colour, EWA projection.
+
+For every Gaussian, one pass computes what ``FreeTimeGaussians.at_time``, ``sh.eval_sh``
+(along the normalised direction from the camera centre) and ``project.project`` compute with
+dozens of PyTorch operations, in float32 and in the same order of operations as those
+modules, so that the outputs agree with them to float32 rounding:
+
+    mean(t) = mu + v (t - mu_t),  phi = g + (1 - g) a  or  a,  a = exp(-0.5 ((t - mu_t) / s)^2)
+    opacity = sigmoid(o) phi,      colour = max(sum_k Y_k(dir) sh_k + 0.5, 0)
+    means2d, conics, depths, radii  as in ``project.py`` (culled Gaussians: zeros, radius 0)
+
+``prepare_backward`` recomputes the forward values of each Gaussian and applies the chain
+rule by hand (the derivation is written next to each step). Each Gaussian's gradients are
+computed by one thread with no reduction across Gaussians, so results are bitwise identical
+across runs and thread counts.
+
+Float literals are ``np.float32`` constants: a Python float would promote the maths to float64.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from ftgspp.render.sh import C0, C1, C2, C3
+
+_JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
+
+F0 = np.float32(0.0)
+F1 = np.float32(1.0)
+F2 = np.float32(2.0)
+F3 = np.float32(3.0)
+F4 = np.float32(4.0)
+F_HALF = np.float32(0.5)
+F_03 = np.float32(0.3)
+F_EPS_DIR = np.float32(1e-8)  # view.py: dirs / norm.clamp_min(1e-8)
+F_EPS_SH = np.float32(1e-12)  # sh.py: dirs / norm.clamp_min(1e-12)
+F_RADIUS_MAX = np.float32(1.0e6)
+SC0 = np.float32(C0)
+SC1 = np.float32(C1)
+SC2 = np.array(C2, np.float32)
+SC3 = np.array(C3, np.float32)
+
+# Columns of the camera row passed to the kernels (float32 [N_CAM]).
+CAM_FX, CAM_FY, CAM_CX, CAM_CY, CAM_W, CAM_H, CAM_NEAR, CAM_EPS2D = 0, 1, 2, 3, 4, 5, 6, 7
+CAM_LOX, CAM_HIX, CAM_LOY, CAM_HIY = 8, 9, 10, 11  # clamp limits of x/z and y/z
+N_CAM = 12
+
+
+BLOCK = 256  # Gaussians per parallel work item (each item allocates its scratch once)
+
+
+class Scratch(NamedTuple):
+    """Small per-work-item buffers (float32)."""
+
+    R: np.ndarray  # [3, 3]
+    scale: np.ndarray  # [3]
+    cov3: np.ndarray  # [3, 3]
+    cov_cam: np.ndarray  # [3, 3]
+    jac: np.ndarray  # [2, 3]
+    tmp: np.ndarray  # [3, 3]
+    t2: np.ndarray  # [2, 3]
+    basis: np.ndarray  # [16]
+    g_basis: np.ndarray  # [16]
+    gj: np.ndarray  # [2, 3]
+    g_cam: np.ndarray  # [3, 3]
+    gJ: np.ndarray  # [2, 3]
+    g3: np.ndarray  # [3, 3]
+    gR: np.ndarray  # [3, 3]
+
+
+@njit(**_JIT)
+def _scratch():
+    f = np.float32
+    return Scratch(
+        np.empty((3, 3), f), np.empty(3, f), np.empty((3, 3), f), np.empty((3, 3), f), np.empty((2, 3), f),
+        np.empty((3, 3), f), np.empty((2, 3), f), np.empty(16, f), np.empty(16, f), np.empty((2, 3), f),
+        np.empty((3, 3), f), np.empty((2, 3), f), np.empty((3, 3), f), np.empty((3, 3), f),
+    )  # fmt: skip
+
+
+@njit(**_JIT)
+def _sigmoid(x):
+    return F1 / (F1 + math.exp(-x))
+
+
+@njit(inline="always", **_JIT)
+def _temporal(i, t, times, durations, gate_logits, max_duration, gate_on, gate_gamma):
+    """(dt, s, a, gate value, phi) of Gaussian i at time t (float32)."""
+    d = durations[i]
+    if max_duration > F0:
+        s = max_duration * _sigmoid(d)  # max_duration holds max_duration / 6
+    else:
+        s = np.float32(math.exp(d))
+    dt = t - times[i]
+    r = dt / s
+    a = np.float32(math.exp(np.float32(-F_HALF) * (r * r)))
+    gv = F0
+    phi = a
+    if gate_on:
+        gv = _sigmoid(gate_gamma * gate_logits[i])
+        phi = gv + (F1 - gv) * a
+    return dt, s, a, gv, phi
+
+
+@njit(inline="always", **_JIT)
+def _basis(degree, x, y, z, out):
+    """Real SH basis (sh.py's order and constants) at the unit direction (x, y, z) into out."""
+    out[0] = SC0
+    if degree >= 1:
+        out[1] = -SC1 * y
+        out[2] = SC1 * z
+        out[3] = -SC1 * x
+    if degree >= 2:
+        xx, yy, zz = x * x, y * y, z * z
+        out[4] = SC2[0] * x * y
+        out[5] = SC2[1] * y * z
+        out[6] = SC2[2] * (F2 * zz - xx - yy)
+        out[7] = SC2[3] * x * z
+        out[8] = SC2[4] * (xx - yy)
+    if degree >= 3:
+        xx, yy, zz = x * x, y * y, z * z
+        out[9] = SC3[0] * y * (F3 * xx - yy)
+        out[10] = SC3[1] * x * y * z
+        out[11] = SC3[2] * y * (F4 * zz - xx - yy)
+        out[12] = SC3[3] * z * (F2 * zz - F3 * xx - F3 * yy)
+        out[13] = SC3[4] * x * (F4 * zz - xx - yy)
+        out[14] = SC3[5] * z * (xx - yy)
+        out[15] = SC3[6] * x * (xx - F3 * yy)
+
+
+@njit(inline="always", **_JIT)
+def _basis_grad(degree, x, y, z, gb):
+    """Gradient of sum_k gb[k] Y_k(x, y, z) with respect to (x, y, z)."""
+    gx = F0
+    gy = F0
+    gz = F0
+    if degree >= 1:
+        gx += -SC1 * gb[3]
+        gy += -SC1 * gb[1]
+        gz += SC1 * gb[2]
+    if degree >= 2:
+        gx += SC2[0] * y * gb[4] + SC2[2] * (-F2 * x) * gb[6] + SC2[3] * z * gb[7] + SC2[4] * (F2 * x) * gb[8]
+        gy += SC2[0] * x * gb[4] + SC2[1] * z * gb[5] + SC2[2] * (-F2 * y) * gb[6] - SC2[4] * (F2 * y) * gb[8]
+        gz += SC2[1] * y * gb[5] + SC2[2] * (F4 * z) * gb[6] + SC2[3] * x * gb[7]
+    if degree >= 3:
+        xx, yy, zz = x * x, y * y, z * z
+        f6 = np.float32(6.0)
+        f8 = np.float32(8.0)
+        gx += (
+            SC3[0] * y * f6 * x * gb[9] + SC3[1] * y * z * gb[10] + SC3[2] * y * (-F2 * x) * gb[11]
+            + SC3[3] * z * (-f6 * x) * gb[12] + SC3[4] * (F4 * zz - F3 * xx - yy) * gb[13]
+            + SC3[5] * z * F2 * x * gb[14] + SC3[6] * (F3 * xx - F3 * yy) * gb[15]
+        )  # fmt: skip
+        gy += (
+            SC3[0] * (F3 * xx - F3 * yy) * gb[9] + SC3[1] * x * z * gb[10]
+            + SC3[2] * (F4 * zz - xx - F3 * yy) * gb[11] + SC3[3] * z * (-f6 * y) * gb[12]
+            + SC3[4] * x * (-F2 * y) * gb[13] + SC3[5] * z * (-F2 * y) * gb[14] + SC3[6] * x * (-f6 * y) * gb[15]
+        )  # fmt: skip
+        gz += (
+            SC3[1] * x * y * gb[10] + SC3[2] * y * f8 * z * gb[11]
+            + SC3[3] * (f6 * zz - F3 * xx - F3 * yy) * gb[12] + SC3[4] * x * f8 * z * gb[13]
+            + SC3[5] * (xx - yy) * gb[14]
+        )  # fmt: skip
+    return gx, gy, gz
+
+
+@njit(**_JIT)
+def _normalise(x, y, z, eps):
+    """(x, y, z) / max(|(x, y, z)|, eps) and that denominator."""
+    n = max(np.float32(math.sqrt(x * x + y * y + z * z)), eps)
+    return x / n, y / n, z / n, n
+
+
+@njit(**_JIT)
+def _normalise_grad(ux, uy, uz, n, eps, gx, gy, gz):
+    """Backward of u = v / max(|v|, eps) at v = n u: the cotangent of v."""
+    if n > eps:
+        dot = ux * gx + uy * gy + uz * gz
+        return (gx - ux * dot) / n, (gy - uy * dot) / n, (gz - uz * dot) / n
+    return gx / n, gy / n, gz / n
+
+
+@njit(inline="always", **_JIT)
+def _rotation(qw, qx, qy, qz, R):
+    """Rotation matrix of the normalised quaternion (project.py's formula) into R [3, 3]."""
+    R[0, 0] = F1 - F2 * (qy * qy + qz * qz)
+    R[0, 1] = F2 * (qx * qy - qw * qz)
+    R[0, 2] = F2 * (qx * qz + qw * qy)
+    R[1, 0] = F2 * (qx * qy + qw * qz)
+    R[1, 1] = F1 - F2 * (qx * qx + qz * qz)
+    R[1, 2] = F2 * (qy * qz - qw * qx)
+    R[2, 0] = F2 * (qx * qz - qw * qy)
+    R[2, 1] = F2 * (qy * qz + qw * qx)
+    R[2, 2] = F1 - F2 * (qx * qx + qy * qy)
+
+
+@njit(inline="always", **_JIT)
+def _mul3(A, B, out, a_t, b_t):
+    """out = op(A) op(B) over the leading 3x3 blocks, op = transpose where a_t / b_t."""
+    for r in range(3):
+        for c in range(3):
+            acc = F0
+            for k in range(3):
+                acc += (A[k, r] if a_t else A[r, k]) * (B[c, k] if b_t else B[k, c])
+            out[r, c] = acc
+
+
+@njit(inline="always", **_JIT)
+def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, cam, S):
+    """Camera-space centre, clamped tangents, Jacobian and 2D covariance of Gaussian i.
+
+    Fills the scratch ``S`` (R: rotation of the normalised quaternion, scale, cov3 (world),
+    cov_cam, jac [2, 3]); returns (px, py, pz, z_safe, u, v, u_c, v_c, a, b, c, qnorm).
+    """
+    R, scale, cov3, cov_cam, jac, tmp, t2 = S.R, S.scale, S.cov3, S.cov_cam, S.jac, S.tmp, S.t2
+    px = view[0, 0] * mean_x + view[0, 1] * mean_y + view[0, 2] * mean_z + view[0, 3]
+    py = view[1, 0] * mean_x + view[1, 1] * mean_y + view[1, 2] * mean_z + view[1, 3]
+    pz = view[2, 0] * mean_x + view[2, 1] * mean_y + view[2, 2] * mean_z + view[2, 3]
+    z = pz if pz > cam[CAM_NEAR] else F1
+    u = px / z
+    v = py / z
+    u_c = min(max(u, cam[CAM_LOX]), cam[CAM_HIX])
+    v_c = min(max(v, cam[CAM_LOY]), cam[CAM_HIY])
+    fx = cam[CAM_FX]
+    fy = cam[CAM_FY]
+    jac[0, 0] = fx / z
+    jac[0, 1] = F0
+    jac[0, 2] = -fx * u_c / z
+    jac[1, 0] = F0
+    jac[1, 1] = fy / z
+    jac[1, 2] = -fy * v_c / z
+    qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+    qn = np.float32(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz))
+    _rotation(qw / qn, qx / qn, qy / qn, qz / qn, R)
+    for k in range(3):
+        scale[k] = np.float32(math.exp(log_scales[i, k]))
+    for r in range(3):  # cov3 = (R S)(R S)^T
+        for c in range(3):
+            acc = F0
+            for k in range(3):
+                acc += (R[r, k] * scale[k]) * (R[c, k] * scale[k])
+            cov3[r, c] = acc
+    _mul3(view, cov3, tmp, False, False)  # cov_cam = W cov3 W^T
+    _mul3(tmp, view, cov_cam, False, True)
+    # t2 = J cov_cam
+    for r in range(2):
+        for c in range(3):
+            t2[r, c] = jac[r, 0] * cov_cam[0, c] + jac[r, 1] * cov_cam[1, c] + jac[r, 2] * cov_cam[2, c]
+    c00 = t2[0, 0] * jac[0, 0] + t2[0, 1] * jac[0, 1] + t2[0, 2] * jac[0, 2]
+    c01 = t2[0, 0] * jac[1, 0] + t2[0, 1] * jac[1, 1] + t2[0, 2] * jac[1, 2]
+    c10 = t2[1, 0] * jac[0, 0] + t2[1, 1] * jac[0, 1] + t2[1, 2] * jac[0, 2]
+    c11 = t2[1, 0] * jac[1, 0] + t2[1, 1] * jac[1, 1] + t2[1, 2] * jac[1, 2]
+    a = c00 + cam[CAM_EPS2D]
+    b = F_HALF * (c01 + c10)
+    c = c11 + cam[CAM_EPS2D]
+    return px, py, pz, z, u, v, u_c, v_c, a, b, c, qn
+
+
+@njit(parallel=True, **_JIT)
+def prepare_forward(
+    t: np.float32,
+    means: np.ndarray,  # [N, 3] float32
+    velocities: np.ndarray,  # [N, 3]
+    times: np.ndarray,  # [N]
+    durations: np.ndarray,  # [N]
+    log_scales: np.ndarray,  # [N, 3]
+    quats: np.ndarray,  # [N, 4]
+    opacity_logits: np.ndarray,  # [N]
+    gate_logits: np.ndarray,  # [N]
+    sh0: np.ndarray,  # [N, 1, D]
+    shN: np.ndarray,  # [N, K - 1, D]
+    view: np.ndarray,  # [4, 4] world-to-camera
+    centre: np.ndarray,  # [3] camera centre (world)
+    cam: np.ndarray,  # [N_CAM] camera row (CAM_*)
+    sh_degree: int,
+    max_duration: np.float32,  # max_duration / 6, or <= 0 for s = exp(d)
+    gate_on: bool,
+    gate_gamma: np.float32,
+):
+    """Forward pass: (means2d [N, 2], conics [N, 3], colors [N, D], opacities [N], depths [N],
+    radii [N] int32, phi [N], means_t [N, 3]), all float32 but radii."""
+    n = means.shape[0]
+    n_dim = sh0.shape[2]
+    means2d = np.empty((n, 2), np.float32)
+    conics = np.empty((n, 3), np.float32)
+    colors = np.empty((n, n_dim), np.float32)
+    opac = np.empty(n, np.float32)
+    depths = np.empty(n, np.float32)
+    radii = np.empty(n, np.int32)
+    phis = np.empty(n, np.float32)
+    means_t = np.empty((n, 3), np.float32)
+    for blk in prange((n + BLOCK - 1) // BLOCK):
+        S = _scratch()
+        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+            n_dim = sh0.shape[2]
+            width = cam[CAM_W]
+            height = cam[CAM_H]
+            basis = S.basis
+            dt, s, a, gv, phi = _temporal(i, t, times, durations, gate_logits, max_duration, gate_on, gate_gamma)
+            phis[i] = phi
+            opac[i] = _sigmoid(opacity_logits[i]) * phi
+            mx = means[i, 0] + velocities[i, 0] * dt
+            my = means[i, 1] + velocities[i, 1] * dt
+            mz = means[i, 2] + velocities[i, 2] * dt
+            means_t[i, 0] = mx
+            means_t[i, 1] = my
+            means_t[i, 2] = mz
+            # colour along the (twice normalised, as view.py then sh.py do) viewing direction
+            d1x, d1y, d1z, _ = _normalise(mx - centre[0], my - centre[1], mz - centre[2], F_EPS_DIR)
+            dx, dy, dz, _ = _normalise(d1x, d1y, d1z, F_EPS_SH)
+            _basis(sh_degree, dx, dy, dz, basis)
+            for ch in range(n_dim):
+                rgb = basis[0] * sh0[i, 0, ch]
+                for k in range(1, (sh_degree + 1) * (sh_degree + 1)):
+                    rgb += basis[k] * shN[i, k - 1, ch]
+                colors[i, ch] = max(rgb + F_HALF, F0)
+            # projection
+            px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn = _geometry(i, mx, my, mz, log_scales, quats, view, cam, S)
+            depths[i] = pz
+            m2x = cam[CAM_FX] * u + cam[CAM_CX]
+            m2y = cam[CAM_FY] * v + cam[CAM_CY]
+            det = ca * cc - cb * cb
+            valid = pz > cam[CAM_NEAR] and det > F0
+            mid = F_HALF * (ca + cc)
+            lam = mid + np.float32(math.sqrt(max(mid * mid - det, F0)))
+            radius = min(np.float32(math.ceil(F3 * np.float32(math.sqrt(max(lam, F0))))), F_RADIUS_MAX)
+            on_screen = m2x + radius > F0 and m2x - radius < width and m2y + radius > F0 and m2y - radius < height
+            if valid and on_screen and radius > F0:
+                radii[i] = np.int32(radius)
+                means2d[i, 0] = m2x
+                means2d[i, 1] = m2y
+                conics[i, 0] = cc / det
+                conics[i, 1] = -cb / det
+                conics[i, 2] = ca / det
+            else:
+                radii[i] = 0
+                means2d[i, 0] = F0
+                means2d[i, 1] = F0
+                conics[i, 0] = F0
+                conics[i, 1] = F0
+                conics[i, 2] = F0
+    return means2d, conics, colors, opac, depths, radii, phis, means_t
+
+
+@njit(parallel=True, **_JIT)
+def prepare_backward(
+    t: np.float32,
+    means: np.ndarray,
+    velocities: np.ndarray,
+    times: np.ndarray,
+    durations: np.ndarray,
+    log_scales: np.ndarray,
+    quats: np.ndarray,
+    opacity_logits: np.ndarray,
+    gate_logits: np.ndarray,
+    sh0: np.ndarray,
+    shN: np.ndarray,
+    view: np.ndarray,
+    centre: np.ndarray,
+    cam: np.ndarray,
+    sh_degree: int,
+    max_duration: np.float32,
+    gate_on: bool,
+    gate_gamma: np.float32,
+    radii: np.ndarray,  # [N] int32 from the forward pass
+    g_means2d: np.ndarray,  # [N, 2] cotangents of the forward outputs
+    g_conics: np.ndarray,  # [N, 3]
+    g_colors: np.ndarray,  # [N, D]
+    g_opac: np.ndarray,  # [N]
+    g_depths: np.ndarray,  # [N]
+    g_phi: np.ndarray,  # [N]
+    g_means_t: np.ndarray,  # [N, 3]
+):
+    """Gradients of the inputs (same order as ``prepare_forward``'s array arguments, float32):
+    means, velocities, times, durations, log_scales, quats, opacity_logits, gate_logits, sh0, shN."""
+    n = means.shape[0]
+    n_dim = sh0.shape[2]
+    n_bases = (sh_degree + 1) * (sh_degree + 1)
+    gr_means = np.empty((n, 3), np.float32)
+    gr_vel = np.empty((n, 3), np.float32)
+    gr_times = np.empty(n, np.float32)
+    gr_dur = np.empty(n, np.float32)
+    gr_ls = np.zeros((n, 3), np.float32)
+    gr_quats = np.zeros((n, 4), np.float32)
+    gr_o = np.empty(n, np.float32)
+    gr_gate = np.zeros(n, np.float32)
+    gr_sh0 = np.empty(sh0.shape, np.float32)
+    gr_shN = np.zeros(shN.shape, np.float32)
+    for blk in prange((n + BLOCK - 1) // BLOCK):
+        S = _scratch()
+        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+            n_dim = sh0.shape[2]
+            n_bases = (sh_degree + 1) * (sh_degree + 1)
+            fx = cam[CAM_FX]
+            fy = cam[CAM_FY]
+            dt, s, a, gv, phi = _temporal(i, t, times, durations, gate_logits, max_duration, gate_on, gate_gamma)
+            mx = means[i, 0] + velocities[i, 0] * dt
+            my = means[i, 1] + velocities[i, 1] * dt
+            mz = means[i, 2] + velocities[i, 2] * dt
+            gmx = g_means_t[i, 0]
+            gmy = g_means_t[i, 1]
+            gmz = g_means_t[i, 2]
+
+            # --- projection. Camera-space cotangent g_p, starting with the depth output.
+            px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn = _geometry(i, mx, my, mz, log_scales, quats, view, cam, S)
+            R, scale, cov_cam, jac, basis, g_basis = S.R, S.scale, S.cov_cam, S.jac, S.basis, S.g_basis
+            g_basis[:] = F0
+            gpx = F0
+            gpy = F0
+            gpz = g_depths[i]
+            if radii[i] > 0:
+                # conic = (c, -b, a) / det, det = a c - b^2
+                det = ca * cc - cb * cb
+                id2 = F1 / (det * det)
+                gA, gB, gC = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
+                ga = (-cc * cc * gA + cb * cc * gB - cb * cb * gC) * id2
+                gb = (F2 * cb * cc * gA - (det + F2 * cb * cb) * gB + F2 * ca * cb * gC) * id2
+                gc = (-cb * cb * gA + ca * cb * gB - ca * ca * gC) * id2
+                # cov2d = J C J^T with a = cov00 + eps, b = (cov01 + cov10) / 2, c = cov11 + eps:
+                # G = [[ga, gb/2], [gb/2, gc]], dL/dC = J^T G J, dL/dJ = 2 G J C.
+                g00, g01, g11 = ga, F_HALF * gb, gc
+                gj = S.gj  # G J
+                for c in range(3):
+                    gj[0, c] = g00 * jac[0, c] + g01 * jac[1, c]
+                    gj[1, c] = g01 * jac[0, c] + g11 * jac[1, c]
+                g_cam = S.g_cam  # J^T (G J)
+                for r in range(3):
+                    for c in range(3):
+                        g_cam[r, c] = jac[0, r] * gj[0, c] + jac[1, r] * gj[1, c]
+                gJ = S.gJ  # 2 (G J) C
+                for r in range(2):
+                    for c in range(3):
+                        gJ[r, c] = F2 * (gj[r, 0] * cov_cam[0, c] + gj[r, 1] * cov_cam[1, c] + gj[r, 2] * cov_cam[2, c])
+                # J = [[fx/z, 0, -fx u_c/z], [0, fy/z, -fy v_c/z]]
+                iz = F1 / z
+                gpz += (-gJ[0, 0] * fx + gJ[0, 2] * fx * u_c - gJ[1, 1] * fy + gJ[1, 2] * fy * v_c) * iz * iz
+                gu = g_means2d[i, 0] * fx
+                gv_ = g_means2d[i, 1] * fy
+                if cam[CAM_LOX] <= u <= cam[CAM_HIX]:  # clamp passes the gradient inside its range
+                    gu += -gJ[0, 2] * fx * iz
+                if cam[CAM_LOY] <= v <= cam[CAM_HIY]:
+                    gv_ += -gJ[1, 2] * fy * iz
+                # u = x / z, v = y / z
+                gpx += gu * iz
+                gpy += gv_ * iz
+                gpz += -(gu * u + gv_ * v) * iz
+                # cov_cam = W cov3 W^T  ->  dL/dcov3 = W^T g_cam W
+                tmp, g3 = S.tmp, S.g3
+                _mul3(view, g_cam, tmp, True, False)
+                _mul3(tmp, view, g3, False, False)
+                # cov3 = M M^T, M = R S  ->  dL/dM = (g3 + g3^T) M; dR_rk = dM_rk s_k; ds_k = sum_r dM_rk R_rk
+                gR = S.gR
+                for k in range(3):
+                    gs = F0
+                    for r in range(3):
+                        gm = F0
+                        for c in range(3):
+                            gm += (g3[r, c] + g3[c, r]) * (R[c, k] * scale[k])
+                        gR[r, k] = gm * scale[k]
+                        gs += gm * R[r, k]
+                    gr_ls[i, k] = gs * scale[k]  # s = exp(log s)
+                qw, qx, qy, qz = quats[i, 0] / qn, quats[i, 1] / qn, quats[i, 2] / qn, quats[i, 3] / qn
+                gw = F2 * (-qz * gR[0, 1] + qy * gR[0, 2] + qz * gR[1, 0] - qx * gR[1, 2] - qy * gR[2, 0] + qx * gR[2, 1])
+                gx = F2 * (qy * gR[0, 1] + qz * gR[0, 2] + qy * gR[1, 0] - F2 * qx * gR[1, 1] - qw * gR[1, 2]
+                           + qz * gR[2, 0] + qw * gR[2, 1] - F2 * qx * gR[2, 2])  # fmt: skip
+                gy = F2 * (-F2 * qy * gR[0, 0] + qx * gR[0, 1] + qw * gR[0, 2] + qx * gR[1, 0] + qz * gR[1, 2]
+                           - qw * gR[2, 0] + qz * gR[2, 1] - F2 * qy * gR[2, 2])  # fmt: skip
+                gz = F2 * (-F2 * qz * gR[0, 0] - qw * gR[0, 1] + qx * gR[0, 2] + qw * gR[1, 0] - F2 * qz * gR[1, 1]
+                           + qy * gR[1, 2] + qx * gR[2, 0] + qy * gR[2, 1])  # fmt: skip
+                dot = qw * gw + qx * gx + qy * gy + qz * gz  # q / |q|
+                gr_quats[i, 0] = (gw - qw * dot) / qn
+                gr_quats[i, 1] = (gx - qx * dot) / qn
+                gr_quats[i, 2] = (gy - qy * dot) / qn
+                gr_quats[i, 3] = (gz - qz * dot) / qn
+            # p = W mean + t
+            gmx += view[0, 0] * gpx + view[1, 0] * gpy + view[2, 0] * gpz
+            gmy += view[0, 1] * gpx + view[1, 1] * gpy + view[2, 1] * gpz
+            gmz += view[0, 2] * gpx + view[1, 2] * gpy + view[2, 2] * gpz
+
+            # --- SH colour
+            d1x, d1y, d1z, n1 = _normalise(mx - centre[0], my - centre[1], mz - centre[2], F_EPS_DIR)
+            dx, dy, dz, n2 = _normalise(d1x, d1y, d1z, F_EPS_SH)
+            _basis(sh_degree, dx, dy, dz, basis)
+            for ch in range(n_dim):
+                rgb = basis[0] * sh0[i, 0, ch]
+                for k in range(1, n_bases):
+                    rgb += basis[k] * shN[i, k - 1, ch]
+                g_rgb = g_colors[i, ch] if rgb + F_HALF >= F0 else F0  # clamp_min passes at >= 0
+                gr_sh0[i, 0, ch] = basis[0] * g_rgb
+                for k in range(1, n_bases):
+                    gr_shN[i, k - 1, ch] = basis[k] * g_rgb
+                    g_basis[k] += shN[i, k - 1, ch] * g_rgb
+            if sh_degree >= 1:
+                gdx, gdy, gdz = _basis_grad(sh_degree, dx, dy, dz, g_basis)
+                gdx, gdy, gdz = _normalise_grad(dx, dy, dz, n2, F_EPS_SH, gdx, gdy, gdz)
+                gdx, gdy, gdz = _normalise_grad(d1x, d1y, d1z, n1, F_EPS_DIR, gdx, gdy, gdz)
+                gmx += gdx
+                gmy += gdy
+                gmz += gdz
+
+            # --- time: mean_t = mu + v dt, dt = t - mu_t; opacity = sigmoid(o) phi
+            gr_means[i, 0] = gmx
+            gr_means[i, 1] = gmy
+            gr_means[i, 2] = gmz
+            gr_vel[i, 0] = gmx * dt
+            gr_vel[i, 1] = gmy * dt
+            gr_vel[i, 2] = gmz * dt
+            g_dt = gmx * velocities[i, 0] + gmy * velocities[i, 1] + gmz * velocities[i, 2]
+            sig_o = _sigmoid(opacity_logits[i])
+            g_phi_total = g_phi[i] + g_opac[i] * sig_o
+            gr_o[i] = g_opac[i] * phi * sig_o * (F1 - sig_o)
+            g_a = g_phi_total
+            if gate_on:  # phi = g + (1 - g) a, g = sigmoid(gamma logit)
+                g_a = g_phi_total * (F1 - gv)
+                gr_gate[i] = g_phi_total * (F1 - a) * gate_gamma * gv * (F1 - gv)
+            # a = exp(-r^2 / 2), r = dt / s
+            r = dt / s
+            g_r = -g_a * a * r
+            g_dt += g_r / s
+            g_s = -g_r * r / s
+            gr_times[i] = -g_dt
+            if max_duration > F0:  # s = (max/6) sigmoid(d): ds/dd = s (1 - sigmoid(d))
+                gr_dur[i] = g_s * s * (F1 - _sigmoid(durations[i]))
+            else:  # s = exp(d)
+                gr_dur[i] = g_s * s
+    return gr_means, gr_vel, gr_times, gr_dur, gr_ls, gr_quats, gr_o, gr_gate, gr_sh0, gr_shN
