@@ -14,10 +14,10 @@ from torch import nn
 class ColorCorrection(nn.Module):
     """One affine colour transform per training camera."""
 
-    def __init__(self, n_cameras: int) -> None:
+    def __init__(self, n_cameras: int, device: torch.device | str = "cpu") -> None:
         super().__init__()
-        self.delta = nn.Parameter(torch.zeros(n_cameras, 3, 3))  # [C, 3, 3] ΔM
-        self.bias = nn.Parameter(torch.zeros(n_cameras, 3))  # [C, 3] b
+        self.delta = nn.Parameter(torch.zeros(n_cameras, 3, 3, device=device))  # [C, 3, 3] ΔM
+        self.bias = nn.Parameter(torch.zeros(n_cameras, 3, device=device))  # [C, 3] b
 
     def forward(self, image: torch.Tensor, cam: int) -> torch.Tensor:
         """Apply camera ``cam``'s transform to ``image`` ``[H, W, 3]``."""
@@ -29,4 +29,4 @@ class ColorCorrection(nn.Module):
 
     def matrices(self) -> torch.Tensor:
         """The full 3x3 matrices I3 + ΔM, ``[C, 3, 3]``."""
-        return torch.eye(3) + self.delta.detach()
+        return torch.eye(3, device=self.delta.device) + self.delta.detach()

@@ -1,8 +1,10 @@
 """Evaluation on the held-out cameras over every loaded frame.
 
-Each frame is rendered without colour correction, scored with every metric of
-``ftgspp.metrics.evaluate_images`` (PSNR, SSIM at data range 1 and 2, DSSIM, LPIPS when
-its weights are present), and the per-frame scores are averaged, as the papers do.
+Each frame is rendered without colour correction, scored with the metrics of
+``ftgspp.metrics`` and the per-frame scores are averaged, as the papers do. Two passes:
+``evaluate`` (PSNR, SSIM at data range 1 and 2, DSSIM, saved renders) and then
+``evaluate_lpips`` (LPIPS when its weights are present), so the trainer can save the
+network-free numbers before an optional network metric runs.
 A few frames are saved as ``renders/<cam>_<frame>.png`` (ground truth | render).
 """
 
@@ -19,7 +21,7 @@ import torch
 
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
-from ftgspp.metrics import evaluate_images
+from ftgspp.metrics import METRICS, available_metrics, evaluate_images
 from ftgspp.model import FreeTimeGaussians
 from ftgspp.view import render_view
 
@@ -58,17 +60,44 @@ def _save_pair(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
     cv2.imwrite(str(path), cv2.cvtColor((np.clip(both, 0, 1) * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR))
 
 
+# Metrics that need no network (PSNR, SSIM, DSSIM): computed and saved first.
+CORE_METRICS = [name for name, m in METRICS.items() if m.lpips_net is None]
+
+
 @torch.no_grad()
 def evaluate(
     model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig, out_dir: Path, n_saved: int = 3
 ) -> tuple[dict[str, float], list[Path]]:
-    """Average metrics over all held-out (camera, frame) pairs; returns ``(metrics, saved_pngs)``."""
-    device = model.params["means"].device
-    background = torch.tensor(cfg.background, dtype=torch.float32, device=device)
-    lpips = lpips_models(device)
+    """PSNR, SSIM and DSSIM averaged over all held-out (camera, frame) pairs, plus a few saved
+    renders; returns ``(metrics, saved_pngs)``. LPIPS is separate (``evaluate_lpips``) so that
+    an optional network metric runs only after these numbers are on disk."""
     render_dir = out_dir / "renders"
     render_dir.mkdir(parents=True, exist_ok=True)
-    saved = set(np.linspace(0, scene.n_frames - 1, n_saved).round().astype(int).tolist())
+    return _score(model, scene, cfg, CORE_METRICS, None, render_dir, n_saved)
+
+
+@torch.no_grad()
+def evaluate_lpips(model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig) -> dict[str, float]:
+    """LPIPS (AlexNet, VGG; both input conventions) over the held-out frames.
+
+    Empty when the weights are missing; a metric whose network cannot take images this
+    small is NaN with a one-line warning (``ftgspp.metrics.LPIPS_MIN_SIDE``).
+    """
+    lpips = lpips_models(model.params["means"].device)
+    if lpips is None:
+        return {}
+    names = [n for n in available_metrics(lpips) if METRICS[n].lpips_net is not None]
+    metrics, _ = _score(model, scene, cfg, names, lpips, None, 0)
+    metrics.pop("eval_frames")
+    return metrics
+
+
+def _score(model, scene, cfg, names: list[str], lpips: dict | None, render_dir: Path | None,
+           n_saved: int) -> tuple[dict[str, float], list[Path]]:
+    """Render every held-out frame once and average the ``names`` metrics over frames."""
+    device = model.params["means"].device
+    background = torch.tensor(cfg.background, dtype=torch.float32, device=device)
+    saved = set(np.linspace(0, scene.n_frames - 1, n_saved).round().astype(int).tolist()) if n_saved else set()
     rows: list[dict[str, float]] = []
     artifacts: list[Path] = []
     for cam_idx in scene.test_ids:
@@ -78,12 +107,11 @@ def evaluate(
             pred = out.image.clamp(0, 1)
             gt = torch.from_numpy(scene.image(cam_idx, f)).to(device)
             with one_torch_thread():  # metrics independent of how many workers share the machine
-                rows.append(evaluate_images(pred, gt, lpips=lpips))
-            if f in saved:
+                rows.append(evaluate_images(pred, gt, lpips=lpips, names=names))
+            if render_dir is not None and f in saved:
                 path = render_dir / f"{cam.name}_{f:04d}.png"
                 _save_pair(path, gt.cpu().numpy(), pred.cpu().numpy())
                 artifacts.append(path)
-    keys = rows[0].keys()
-    metrics = {k: float(np.mean([r[k] for r in rows])) for k in keys}
+    metrics = {k: float(np.mean([r[k] for r in rows])) for k in names}
     metrics["eval_frames"] = float(len(rows))
     return metrics, artifacts

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import sys
 from dataclasses import dataclass
@@ -45,7 +46,12 @@ from torch import Tensor
 
 from ftgspp.errors import InputError
 
+log = logging.getLogger("ftgspp.metrics")
+
 SSIM_WINDOW = 11
+# Smallest image side each LPIPS backbone can take: AlexNet's second 3x3/2 max-pool needs
+# sides >= 31 pixels, VGG16's four 2x2 pools need >= 16. Smaller images score NaN.
+LPIPS_MIN_SIDE = {"alex": 31, "vgg": 16}
 SSIM_SIGMA = 1.5
 SSIM_K1, SSIM_K2 = 0.01, 0.03
 
@@ -70,7 +76,7 @@ def _check_pair(a: Tensor, b: Tensor) -> None:
 @lru_cache(maxsize=16)
 def _gaussian_1d(size: int, sigma: float, dtype: torch.dtype, device: str) -> Tensor:
     """Normalised Gaussian taps [size], as scipy.ndimage (truncate so that r = size // 2)."""
-    x = torch.arange(size, dtype=torch.float64) - size // 2
+    x = torch.arange(size, dtype=torch.float64, device="cpu") - size // 2
     w = torch.exp(-0.5 * (x / sigma) ** 2)
     return (w / w.sum()).to(dtype=dtype, device=device)
 
@@ -177,7 +183,17 @@ def _dssim(p: Tensor, g: Tensor, _: Mapping[str, torch.nn.Module], data_range: f
     return dssim(p.double(), g.double(), data_range)
 
 
+_warned_small: set[tuple[str, int, int]] = set()
+
+
 def _lpips(p: Tensor, g: Tensor, models: Mapping[str, torch.nn.Module], net: str, zero_one: bool) -> Tensor:
+    height, width = p.shape[1], p.shape[2]
+    if min(height, width) < LPIPS_MIN_SIDE[net]:  # the network cannot take it: NaN, one warning
+        if (net, height, width) not in _warned_small:
+            _warned_small.add((net, height, width))
+            log.warning("LPIPS-%s needs images of at least %dx%d pixels, got %dx%d: lpips_%s is NaN",
+                        net, LPIPS_MIN_SIDE[net], LPIPS_MIN_SIDE[net], width, height, net)
+        return torch.full((p.shape[0],), float("nan"), dtype=torch.float64)
     model = models[net]
     device = next(model.parameters()).device
     return lpips_distance(model, p.float().to(device), g.float().to(device), zero_one)

@@ -57,23 +57,25 @@ class FreeTimeGaussians(nn.Module):
         spacing: np.ndarray,  # [N] kNN spacing
         cfg: ModelConfig,
         init: InitConfig,
+        device: torch.device | str = "cpu",
     ) -> "FreeTimeGaussians":
-        """Build a model from initial points (DESIGN.md section 4, "Init")."""
+        """Build a model on ``device`` from initial points (DESIGN.md section 4, "Init")."""
         n = len(means)
-        f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+        f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
+        full = lambda value: torch.full((n,), float(value), device=device)  # noqa: E731
         n_sh = (cfg.sh_degree + 1) ** 2
         spacing_t = f32(spacing).clamp_min(1e-7)
         params = {
             "means": f32(means),
             "times": f32(times),
-            "durations": torch.full((n,), duration_to_param(init.duration, cfg.max_duration)),
+            "durations": full(duration_to_param(init.duration, cfg.max_duration)),
             "velocities": f32(velocities),
             "scales": torch.log(init.scale_factor * spacing_t)[:, None].repeat(1, 3),
-            "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n, 1),
-            "opacities": torch.full((n,), math.log(init.opacity / (1 - init.opacity))),
+            "quats": f32([1.0, 0.0, 0.0, 0.0]).repeat(n, 1),
+            "opacities": full(math.log(init.opacity / (1 - init.opacity))),
             "sh0": ((f32(colors) - 0.5) / SH_C0)[:, None, :],
-            "shN": torch.zeros(n, n_sh - 1, 3),
-            "gates": torch.full((n,), float(cfg.gate_init)),
+            "shN": torch.zeros(n, n_sh - 1, 3, device=device),
+            "gates": full(cfg.gate_init),
         }
         return cls(params, cfg)
 

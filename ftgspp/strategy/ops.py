@@ -7,12 +7,10 @@ from torch import nn
 
 
 @torch.no_grad()
-def reset_moments(optimizers: dict[str, torch.optim.Optimizer], params: nn.ParameterDict, idx: torch.Tensor) -> None:
-    """Zero the Adam moments of Gaussians ``idx`` in every per-parameter optimizer."""
-    for name, opt in optimizers.items():
-        if name not in params:
-            continue
-        state = opt.state.get(params[name], {})
+def reset_moments(optimizer: torch.optim.Optimizer, params: nn.ParameterDict, idx: torch.Tensor) -> None:
+    """Zero the Adam moments of Gaussians ``idx`` (rows of every per-Gaussian parameter)."""
+    for p in params.values():
+        state = optimizer.state.get(p, {})
         for key in ("exp_avg", "exp_avg_sq"):
             if key in state:
                 state[key][idx] = 0

@@ -53,7 +53,7 @@ class Relocator:
     def step(
         self,
         params: nn.ParameterDict,
-        optimizers: dict[str, torch.optim.Optimizer],
+        optimizer: torch.optim.Optimizer,
         state: dict[str, torch.Tensor],
         generator: torch.Generator,
     ) -> int:
@@ -81,5 +81,5 @@ class Relocator:
             copy_gaussians(params, dead, sources)
         else:  # partial_copy
             copy_gaussians(params, dead, sources, keep=("opacities", "scales"))
-        reset_moments(optimizers, params, torch.cat([dead, sources]))
+        reset_moments(optimizer, params, torch.cat([dead, sources]))
         return len(dead)

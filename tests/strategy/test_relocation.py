@@ -26,12 +26,11 @@ def make_params(n=50, n_dead=10, seed=0):
         "opacities": nn.Parameter(logits),
         "velocities": nn.Parameter(torch.randn(n, 3, generator=g)),
     })
-    opts = {k: torch.optim.Adam([p], lr=1e-2) for k, p in params.items()}
+    opt = torch.optim.Adam([{"params": [p], "name": k} for k, p in params.items()], lr=1e-2)
     loss = sum((p**2).sum() for p in params.values())
     loss.backward()
-    for o in opts.values():
-        o.step()
-    return params, opts
+    opt.step()
+    return params, opt
 
 
 def mcmc_by_hand(o: float, s: float, n: int, min_opacity: float, clamp: str) -> tuple[float, float]:
@@ -48,11 +47,11 @@ def mcmc_by_hand(o: float, s: float, n: int, min_opacity: float, clamp: str) -> 
 
 @pytest.mark.parametrize("policy", ["mcmc", "exact_copy", "partial_copy"])
 def test_policy_semantics(policy):
-    params, opts = make_params()
+    params, opt = make_params()
     before = {k: v.detach().clone() for k, v in params.items()}
     reloc = Relocator(StrategyConfig(relocation=policy))
     state = reloc.initialize_state(50)
-    moved = reloc.step(params, opts, state, torch.Generator().manual_seed(1))
+    moved = reloc.step(params, opt, state, torch.Generator().manual_seed(1))
     dead = torch.arange(10)  # make_params kills the first ten
     assert moved == 10
     assert all(v.shape[0] == 50 for v in params.values())  # count kept
@@ -83,8 +82,8 @@ def test_policy_semantics(policy):
         torch.testing.assert_close(params["scales"][untouched], before["scales"][untouched], rtol=0, atol=0)
     # moments of moved Gaussians (destinations and sources) are zero, others untouched
     moved_idx = torch.cat([dead, sources]).unique()
-    for name, opt in opts.items():
-        st = opt.state[params[name]]
+    for p in params.values():
+        st = opt.state[p]
         assert torch.all(st["exp_avg"][moved_idx] == 0)
         assert torch.all(st["exp_avg_sq"][moved_idx] == 0)
         others = torch.ones(50, dtype=torch.bool)

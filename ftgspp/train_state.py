@@ -1,0 +1,189 @@
+"""The mutable state of one training run, in one object that saves and restores itself.
+
+``TrainState`` holds what changes while a run trains: the Gaussians, the colour
+correction, one Adam over every parameter group, the relocation statistics, the frame
+sampler and the random generators, the step and the training seconds. Learning rates are
+derived from the step (``set_learning_rates``), so there is no scheduler state to keep.
+``state_dict()`` / ``load_state_dict()`` make a checkpoint and a resume one call each, as
+PyTorch modules and gsplat strategies do.
+
+    state = TrainState.create(cfg, scene, device)
+    ... train ...
+    state.save(out_dir / "checkpoint.pt")
+    state = TrainState.create(cfg, scene, device); state.load(out_dir / "checkpoint.pt")
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ftgspp.color import ColorCorrection
+from ftgspp.config import TrainConfig
+from ftgspp.data.scene import Scene
+from ftgspp.init import initialize
+from ftgspp.model import FreeTimeGaussians
+from ftgspp.strategy import Relocator
+
+log = logging.getLogger("ftgspp.train")
+
+# learning-rate keys of LearningRates that are multiplied by the scene extent and decay
+EXTENT_SCALED = ("means", "velocities")
+CHECKPOINT_FORMAT = 2  # 1: one Adam per group and LR schedulers (before the state object)
+
+
+def scene_extent(scene: Scene) -> float:
+    """Radius of the training cameras around their centroid, × 1.1 (the 3DGS convention).
+
+    Held-out cameras are left out: they must not influence training (here, the learning
+    rates of means and velocities)."""
+    centres = np.stack([scene.cameras[i].center for i in scene.train_ids])
+    return float(1.1 * np.linalg.norm(centres - centres.mean(0), axis=1).max())
+
+
+def build_model(cfg: TrainConfig, scene: Scene, device: torch.device) -> FreeTimeGaussians:
+    """Initialise the Gaussians from the scene (seeded by ``init.fixed_seed`` or the run seed)."""
+    init_seed = cfg.seed if cfg.init.fixed_seed is None else cfg.init.fixed_seed
+    pts = initialize(scene, cfg.init, cfg.budget, seed=init_seed)
+    return FreeTimeGaussians.from_points(
+        pts.means, pts.colors, pts.times, pts.velocities, pts.spacing, cfg.model, cfg.init, device
+    )
+
+
+def make_optimizer(
+    model: FreeTimeGaussians, cc: ColorCorrection | None, cfg: TrainConfig, extent: float
+) -> torch.optim.Adam:
+    """One Adam over every parameter group (``group["name"]`` says which), fused on CPU and CUDA.
+
+    Learning rates are ``lr.<name> × lr.scale`` (× the scene extent for means and
+    velocities); ``group["decays"]`` marks the groups whose rate decays over training.
+    The colour correction's group gets gradients only once it is switched on; Adam skips
+    parameters without a gradient, so its moments start then.
+    """
+    lrs = asdict(cfg.lr)
+    groups = []
+    for name, p in model.params.items():
+        if name == "gates" and not cfg.model.gate:
+            p.requires_grad_(False)
+            continue
+        lr = lrs[name] * cfg.lr.scale * (extent if name in EXTENT_SCALED else 1.0)
+        groups.append({"params": [p], "lr": lr, "initial_lr": lr, "name": name, "decays": name in EXTENT_SCALED})
+    if cc is not None:
+        lr = cfg.lr.cc * cfg.lr.scale
+        groups.append({"params": list(cc.parameters()), "lr": lr, "initial_lr": lr, "name": "cc", "decays": False})
+    return torch.optim.Adam(groups, eps=1e-15, fused=True)
+
+
+def set_learning_rates(optimizer: torch.optim.Optimizer, step: int, cfg: TrainConfig) -> None:
+    """Rates for iteration ``step`` (0-based): decaying groups reach ``means_final_ratio`` × their
+    initial rate at ``cfg.iterations``, exponentially; the others stay constant."""
+    fraction = step / max(cfg.iterations, 1)
+    factor = cfg.lr.means_final_ratio**fraction
+    for group in optimizer.param_groups:
+        group["lr"] = group["initial_lr"] * (factor if group["decays"] else 1.0)
+
+
+class FrameSampler:
+    """Seeded shuffles of all (training camera, frame) pairs, one permutation per epoch."""
+
+    def __init__(self, scene: Scene, generator: torch.Generator) -> None:
+        self.pairs = [(c, f) for c in scene.train_ids for f in range(scene.n_frames)]
+        self.generator = generator
+        self.order: list[int] = []
+
+    def next(self) -> tuple[int, int]:
+        """The next (camera index, frame index) pair."""
+        if not self.order:
+            self.order = torch.randperm(len(self.pairs), generator=self.generator, device="cpu").tolist()
+        return self.pairs[self.order.pop()]
+
+    def state_dict(self) -> dict:
+        return {"order": list(self.order), "generator": self.generator.get_state()}
+
+    def load_state_dict(self, s: dict) -> None:
+        self.order = list(s["order"])
+        self.generator.set_state(s["generator"])
+
+
+@dataclass
+class TrainState:
+    """Everything a run mutates; ``step`` iterations done after ``elapsed`` training seconds."""
+
+    model: FreeTimeGaussians
+    cc: ColorCorrection | None
+    optimizer: torch.optim.Adam
+    relocator: Relocator
+    reloc_stats: dict[str, torch.Tensor]  # per-Gaussian accumulators (Relocator.initialize_state)
+    sampler: FrameSampler
+    reloc_gen: torch.Generator
+    extent: float
+    step: int = 0
+    elapsed: float = 0.0
+
+    @classmethod
+    def create(cls, cfg: TrainConfig, scene: Scene, device: torch.device) -> "TrainState":
+        """A fresh run: initialised Gaussians, identity colour correction, seeded generators."""
+        relocator = Relocator(cfg.strategy)  # validates the strategy before the (slow) init
+        model = build_model(cfg, scene, device)
+        cc = ColorCorrection(len(scene.train_ids), device) if cfg.model.color_correction else None
+        extent = scene_extent(scene)
+        return cls(
+            model=model,
+            cc=cc,
+            optimizer=make_optimizer(model, cc, cfg, extent),
+            relocator=relocator,
+            reloc_stats=relocator.initialize_state(len(model), device),
+            sampler=FrameSampler(scene, torch.Generator().manual_seed(cfg.seed)),
+            reloc_gen=torch.Generator().manual_seed(cfg.seed + 1),
+            extent=extent,
+        )
+
+    def state_dict(self) -> dict:
+        """Tensors on the CPU, plus the generators' and torch's global RNG states."""
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "step": self.step,
+            "elapsed": self.elapsed,
+            "params": {k: v.detach().cpu() for k, v in self.model.params.items()},
+            "cc": self.cc.state_dict() if self.cc is not None else None,
+            "optimizer": self.optimizer.state_dict(),
+            "reloc_stats": {k: v.cpu() for k, v in self.reloc_stats.items()},
+            "sampler": self.sampler.state_dict(),
+            "reloc_gen": self.reloc_gen.get_state(),
+            "torch_rng": torch.get_rng_state(),
+        }
+
+    def load_state_dict(self, blob: dict) -> None:
+        """Restore what ``state_dict`` saved (parameters copied in place, on their device)."""
+        with torch.no_grad():
+            for k, v in blob["params"].items():
+                self.model.params[k].copy_(v)
+        if self.cc is not None and blob["cc"] is not None:
+            self.cc.load_state_dict(blob["cc"])
+        self.optimizer.load_state_dict(blob["optimizer"])
+        for k, v in blob["reloc_stats"].items():
+            self.reloc_stats[k].copy_(v)
+        self.sampler.load_state_dict(blob["sampler"])
+        self.reloc_gen.set_state(blob["reloc_gen"])
+        torch.set_rng_state(blob["torch_rng"])
+        self.step, self.elapsed = int(blob["step"]), float(blob["elapsed"])
+
+    def save(self, path: Path) -> None:
+        """Write a checkpoint atomically (temporary file, then rename)."""
+        tmp = path.with_suffix(".tmp")
+        torch.save(self.state_dict(), tmp)
+        tmp.replace(path)
+
+    def load(self, path: Path) -> bool:
+        """Resume from ``path``; False (and a warning) for a checkpoint of an older format."""
+        blob = torch.load(path, weights_only=False)
+        if blob.get("format") != CHECKPOINT_FORMAT:
+            log.warning("%s was written by an older ftgspp (checkpoint format %s); training from the start",
+                        path, blob.get("format", 1))
+            return False
+        self.load_state_dict(blob)
+        return True
