@@ -21,6 +21,8 @@ Two SSIMs:
 * ``ssim_same`` (training loss) is the 3DGS variant: zero-padded 'same' convolution,
   averaged over every pixel. Cheaper to reason about for gradients at the borders, and
   what 3DGS-style losses ``(1 - ssim)`` use. Its values differ slightly from ``ssim``.
+  On float32 CPU tensors it runs as Numba kernels with a hand-written backward
+  (``ftgspp.ssim_cpu``, same numbers to float32 rounding); otherwise as below.
 
 Both are differentiable (separable Gaussian as two grouped ``conv2d``).
 
@@ -132,8 +134,26 @@ def ssim_same(a: Tensor, b: Tensor, data_range: float = 1.0) -> Tensor:
     """
     _check_pair(a, b)
     (a, batched), (b, _) = _as_batch(a), _as_batch(b)
-    out = _ssim_map(_nchw(a), _nchw(b), data_range, padding=SSIM_WINDOW // 2).flatten(1).mean(dim=1)
+    if _fast_ssim_applies(a, b):
+        from ftgspp.ssim_cpu import ssim_same_cpu
+
+        taps = _gaussian_1d(SSIM_WINDOW, SSIM_SIGMA, torch.float32, "cpu").numpy()
+        c1, c2 = (SSIM_K1 * data_range) ** 2, (SSIM_K2 * data_range) ** 2
+        out = ssim_same_cpu(a, b, taps, c1, c2)
+    else:
+        out = _ssim_map(_nchw(a), _nchw(b), data_range, padding=SSIM_WINDOW // 2).flatten(1).mean(dim=1)
     return out if batched else out[0]
+
+
+def _fast_ssim_applies(a: Tensor, b: Tensor) -> bool:
+    """Whether ``ssim_same`` can use the Numba kernels (float32 CPU tensors, Numba importable)."""
+    if not (a.dtype == b.dtype == torch.float32 and a.device.type == b.device.type == "cpu"):
+        return False
+    try:
+        import ftgspp.ssim_cpu  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def dssim(a: Tensor, b: Tensor, data_range: float = 1.0) -> Tensor:

@@ -95,7 +95,8 @@ def test_psnr_matches_skimage():
         assert abs(float(psnr(torch.from_numpy(a), torch.from_numpy(b))) - expected) < 1e-6
 
 
-def test_training_ssim_matches_zero_padded_gaussian_filter():
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])  # float32: the Numba kernels
+def test_training_ssim_matches_zero_padded_gaussian_filter(dtype):
     a, b = reference_pairs()[0]
 
     def blur(x):  # zero padding, 11 taps (truncate 3.5 at sigma 1.5 -> radius 5)
@@ -105,7 +106,8 @@ def test_training_ssim_matches_zero_padded_gaussian_filter():
     vx, vy, vxy = blur(a * a) - mx**2, blur(b * b) - my**2, blur(a * b) - mx * my
     c1, c2 = 0.01**2, 0.03**2
     expected = (((2 * mx * my + c1) * (2 * vxy + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2))).mean()
-    assert abs(float(ssim_same(torch.from_numpy(a), torch.from_numpy(b))) - expected) < 1e-6
+    got = ssim_same(torch.from_numpy(a).to(dtype), torch.from_numpy(b).to(dtype))
+    assert got.dtype == dtype and abs(float(got) - expected) < (1e-6 if dtype == torch.float64 else 2e-6)
 
 
 def test_ssim_variants_are_differentiable():

@@ -1,0 +1,200 @@
+"""Training-loss SSIM on the CPU: separable 11-tap Gaussian filtering in Numba, hand-written backward.
+
+Computes exactly what ``metrics.ssim_same`` defines (zero-padded 'same' Gaussian window,
+sigma 1.5, population covariances, mean over every pixel and channel), in float32, to float32
+rounding of the PyTorch version, without PyTorch's grouped-convolution autograd graph:
+
+- forward: one horizontal pass filters x, y, x^2, y^2 and xy along each image row (an image
+  [H, W, C] is a grid of H rows of W*C floats; a shift of one pixel is a shift of C floats),
+  one vertical pass finishes the five local moments and evaluates the SSIM map. With
+  gradients requested it also stores the map's partial derivatives with respect to the
+  moments (dS/dmu_x, dS/dmu_y, dS/dsigma^2 terms, dS/dsigma_xy).
+- backward: the zero-padded filter with symmetric taps is its own adjoint, so
+  dL/dx = f(dS/dmu_x) + 2 x f(dS/dE[x^2]) + y f(dS/dE[xy]) (and symmetrically for y), with f
+  the same separable filter.
+
+Every row is computed by one thread and each image's mean is a fixed-order sum of float64
+row sums, so results are bitwise identical across runs and thread counts.
+
+    from ftgspp.ssim_cpu import ssim_same_cpu
+    value = ssim_same_cpu(pred, gt)  # [H, W, C] -> scalar, or [B, H, W, C] -> [B]
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from numba import njit, prange
+from torch import Tensor
+
+from ftgspp.render import cpu as _cpu  # noqa: F401  (chooses the Numba threading layer first)
+
+_JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
+RADIUS = 5  # 11 taps
+
+
+@njit(**_JIT)
+def _filter_row(src, dst, taps, n_ch):
+    """dst = taps (*) src along one row of W*C floats, zero padded, channel stride n_ch."""
+    length = src.shape[0]
+    dst[:] = 0.0
+    for k in range(taps.shape[0]):
+        off = (k - RADIUS) * n_ch
+        w = taps[k]
+        j0 = max(0, -off)
+        j1 = min(length, length - off)
+        d = dst[j0:j1]  # slices, so that LLVM sees two plain streams and vectorises
+        s = src[j0 + off : j1 + off]
+        for j in range(j1 - j0):
+            d[j] += w * s[j]
+
+
+@njit(parallel=True, **_JIT)
+def ssim_forward(
+    x: np.ndarray,  # [B * H, W * C] float32
+    y: np.ndarray,  # [B * H, W * C] float32
+    height: int,
+    n_ch: int,
+    taps: np.ndarray,  # [11] float32, normalised Gaussian
+    c1: np.float32,
+    c2: np.float32,
+    want_grad: bool,
+):
+    """Row sums of the SSIM map [B * H] float64 and, with ``want_grad``, its partial derivatives
+    with respect to mu_x, mu_y, E[x^2] (= that w.r.t. E[y^2]) and E[xy], each [B * H, W * C]."""
+    rows, length = x.shape
+    hx = np.empty((5, rows, length), np.float32)  # horizontally filtered x, y, xx, yy, xy
+    for r in prange(rows):
+        sq = np.empty((3, length), np.float32)
+        for j in range(length):
+            sq[0, j] = x[r, j] * x[r, j]
+            sq[1, j] = y[r, j] * y[r, j]
+            sq[2, j] = x[r, j] * y[r, j]
+        _filter_row(x[r], hx[0, r], taps, n_ch)
+        _filter_row(y[r], hx[1, r], taps, n_ch)
+        _filter_row(sq[0], hx[2, r], taps, n_ch)
+        _filter_row(sq[1], hx[3, r], taps, n_ch)
+        _filter_row(sq[2], hx[4, r], taps, n_ch)
+    n_maps = 4 if want_grad else 0
+    partials = np.empty((n_maps, rows if want_grad else 0, length), np.float32)
+    row_sums = np.empty(rows, np.float64)
+    two = np.float32(2.0)
+    for r in prange(rows):
+        m = np.zeros((5, length), np.float32)
+        yy = r % height
+        for k in range(taps.shape[0]):
+            src = yy + k - RADIUS
+            if src < 0 or src >= height:
+                continue
+            w = taps[k]
+            for q in range(5):
+                for j in range(length):
+                    m[q, j] += w * hx[q, r + k - RADIUS, j]
+        total = 0.0
+        for j in range(length):
+            mx, my = m[0, j], m[1, j]
+            vx = m[2, j] - mx * mx
+            vy = m[3, j] - my * my
+            vxy = m[4, j] - mx * my
+            a1 = two * mx * my + c1
+            a2 = two * vxy + c2
+            b1 = mx * mx + my * my + c1
+            b2 = vx + vy + c2
+            s = (a1 * a2) / (b1 * b2)
+            total += s
+            if want_grad:
+                inv = np.float32(1.0) / (b1 * b2)
+                d_a1 = a2 * inv
+                d_a2 = a1 * inv
+                d_b1 = -s / b1
+                d_b2 = -s / b2
+                # a1 = 2 mx my + c1, a2 = 2 (Exy - mx my) + c2, b1 = mx^2 + my^2 + c1,
+                # b2 = Exx - mx^2 + Eyy - my^2 + c2
+                partials[0, r, j] = two * (my * (d_a1 - d_a2) + mx * (d_b1 - d_b2))
+                partials[1, r, j] = two * (mx * (d_a1 - d_a2) + my * (d_b1 - d_b2))
+                partials[2, r, j] = d_b2
+                partials[3, r, j] = two * d_a2
+        row_sums[r] = total
+    return row_sums, partials
+
+
+@njit(parallel=True, **_JIT)
+def ssim_backward(
+    x: np.ndarray,  # [B * H, W * C] float32
+    y: np.ndarray,  # [B * H, W * C] float32
+    height: int,
+    n_ch: int,
+    taps: np.ndarray,  # [11] float32
+    partials: np.ndarray,  # [4, B * H, W * C] from ssim_forward
+    row_scale: np.ndarray,  # [B * H] float32, d loss / d (each map value) of the row's image
+    want_x: bool,
+    want_y: bool,
+):
+    """Gradients w.r.t. x and y ([B * H, W * C] float32; empty when not wanted)."""
+    rows, length = x.shape
+    hp = np.empty((4, rows, length), np.float32)
+    for r in prange(rows):
+        for q in range(4):
+            _filter_row(partials[q, r], hp[q, r], taps, n_ch)
+    gx = np.empty((rows if want_x else 0, length), np.float32)
+    gy = np.empty((rows if want_y else 0, length), np.float32)
+    two = np.float32(2.0)
+    for r in prange(rows):
+        f = np.zeros((4, length), np.float32)  # filtered partials at this row
+        yy = r % height
+        for k in range(taps.shape[0]):
+            src = yy + k - RADIUS
+            if src < 0 or src >= height:
+                continue
+            w = taps[k]
+            for q in range(4):
+                for j in range(length):
+                    f[q, j] += w * hp[q, r + k - RADIUS, j]
+        scale = row_scale[r]
+        for j in range(length):
+            if want_x:
+                gx[r, j] = scale * (f[0, j] + two * x[r, j] * f[2, j] + y[r, j] * f[3, j])
+            if want_y:
+                gy[r, j] = scale * (f[1, j] + two * y[r, j] * f[2, j] + x[r, j] * f[3, j])
+    return gx, gy
+
+
+class _SSIMSame(torch.autograd.Function):
+    """``ssim_forward`` / ``ssim_backward`` as one autograd node. a, b [B, H, W, C] float32."""
+
+    @staticmethod
+    def forward(ctx, a, b, taps, c1, c2):
+        batch, height, width, n_ch = a.shape
+        x = np.ascontiguousarray(a.detach().numpy()).reshape(batch * height, width * n_ch)
+        y = np.ascontiguousarray(b.detach().numpy()).reshape(batch * height, width * n_ch)
+        want = bool(ctx.needs_input_grad[0] or ctx.needs_input_grad[1])
+        row_sums, partials = ssim_forward(x, y, height, n_ch, taps, np.float32(c1), np.float32(c2), want)
+        means = row_sums.reshape(batch, height).sum(axis=1) / (height * width * n_ch)
+        ctx.arrays = (x, y, partials, taps)
+        ctx.shape = (batch, height, width, n_ch)
+        return torch.from_numpy(means.astype(np.float32))
+
+    @staticmethod
+    def backward(ctx, grad):
+        x, y, partials, taps = ctx.arrays
+        batch, height, width, n_ch = ctx.shape
+        per_value = grad.detach().to(torch.float32).numpy() / np.float32(height * width * n_ch)  # [B]
+        row_scale = np.repeat(per_value, height).astype(np.float32)
+        want_x, want_y = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+        gx, gy = ssim_backward(x, y, height, n_ch, taps, partials, row_scale, want_x, want_y)
+        shape = (batch, height, width, n_ch)
+        return (
+            torch.from_numpy(gx).reshape(shape) if want_x else None,
+            torch.from_numpy(gy).reshape(shape) if want_y else None,
+            None,
+            None,
+            None,
+        )
+
+
+def ssim_same_cpu(a: Tensor, b: Tensor, taps: np.ndarray, c1: float, c2: float) -> Tensor:
+    """SSIM with a zero-padded 'same' window per image: a, b [B, H, W, C] float32 CPU -> [B].
+
+    ``taps`` [11] float32 is the normalised 1-D Gaussian; ``c1``, ``c2`` the SSIM constants.
+    """
+    return _SSIMSame.apply(a.contiguous(), b.contiguous(), taps, c1, c2)

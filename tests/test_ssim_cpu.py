@@ -1,0 +1,73 @@
+"""The Numba training-loss SSIM (``ftgspp.ssim_cpu``) against PyTorch autograd and scipy.
+
+Oracles: the grouped-convolution SSIM of ``metrics`` evaluated and differentiated in float64
+by PyTorch autograd, and scipy's zero-padded Gaussian filter (in test_metrics.py).
+"""
+
+from __future__ import annotations
+
+import numba
+import pytest
+import torch
+
+from ftgspp.metrics import SSIM_WINDOW, _nchw, _ssim_map, ssim_same
+
+
+def autograd_ssim_same(a: torch.Tensor, b: torch.Tensor, data_range: float) -> torch.Tensor:
+    """The PyTorch path of ``ssim_same`` for [B, H, W, C] inputs -> [B]."""
+    return _ssim_map(_nchw(a), _nchw(b), data_range, padding=SSIM_WINDOW // 2).flatten(1).mean(dim=1)
+
+
+def pair(shape, seed):
+    g = torch.Generator().manual_seed(seed)
+    a = torch.rand(*shape, generator=g)
+    b = (0.6 * a + 0.4 * torch.rand(*shape, generator=g)).clamp(0, 1)
+    b[..., : shape[-2] // 3, :] = 0.5  # a flat patch: tiny variances, where rounding matters most
+    return a, b
+
+
+@pytest.mark.parametrize("shape", [(2, 40, 53, 3), (1, 13, 11, 1), (1, 5, 7, 3), (3, 17, 12, 2)])
+@pytest.mark.parametrize("data_range", [1.0, 2.0])
+def test_values_and_gradients_match_float64_autograd(shape, data_range) -> None:
+    a, b = pair(shape, sum(shape))
+    a32, b32 = a.clone().requires_grad_(True), b.clone().requires_grad_(True)
+    got = ssim_same(a32, b32, data_range)
+    weights = torch.linspace(0.5, 1.5, shape[0])
+    (got * weights).sum().backward()
+    a64, b64 = a.double().requires_grad_(True), b.double().requires_grad_(True)
+    want = autograd_ssim_same(a64, b64, data_range)
+    (want * weights.double()).sum().backward()
+    assert got.dtype == torch.float32 and got.shape == (shape[0],)
+    torch.testing.assert_close(got.double(), want.detach(), rtol=0, atol=2e-6)
+    for name, g, ref in (("a", a32.grad, a64.grad), ("b", b32.grad, b64.grad)):
+        err = (g.double() - ref).abs().max().item()
+        assert err <= 1e-4 * ref.abs().max().item(), f"grad {name}: {err:.3g}"
+
+
+def test_unbatched_image_gives_a_scalar_and_only_requested_gradients() -> None:
+    a, b = pair((1, 20, 24, 3), 0)
+    pred = a[0].clone().requires_grad_(True)
+    value = ssim_same(pred, b[0])
+    assert value.shape == ()
+    (1 - value).backward()
+    assert pred.grad is not None and pred.grad.abs().sum() > 0
+    with torch.no_grad():
+        assert float(ssim_same(a[0], a[0])) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_bitwise_deterministic_across_thread_counts() -> None:
+    a, b = pair((2, 33, 41, 3), 5)
+    results = []
+    threads = [1, 2] if numba.config.NUMBA_NUM_THREADS >= 2 else [1]
+    before = numba.get_num_threads()
+    try:
+        for n_threads in threads + [threads[-1]]:
+            numba.set_num_threads(n_threads)
+            x = a.clone().requires_grad_(True)
+            value = ssim_same(x, b)
+            value.sum().backward()
+            results.append((value.detach(), x.grad))
+    finally:
+        numba.set_num_threads(before)
+    for value, grad in results[1:]:
+        assert torch.equal(value, results[0][0]) and torch.equal(grad, results[0][1])
