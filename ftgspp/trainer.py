@@ -184,6 +184,7 @@ def _diagnostics(model, scene, cfg, out_dir: Path) -> tuple[dict[str, float], li
         "motion_epe_dynamic": d.get("motion", {}).get("epe_dynamic"),
         "motion_leak_static": d.get("motion", {}).get("leak_static"),
         "xt_slice_mae": d.get("xt_slice_mae"),
+        **d.get("scores", {}),  # ground-truth scores for the claims (scenes with a gt/ folder)
     }
     files = [Path(f) for f in d.get("files", {}).values()] + [out_dir / "diagnostics.json"]
     return {k: float(v) for k, v in numbers.items() if v is not None}, files

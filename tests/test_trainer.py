@@ -52,6 +52,8 @@ def test_training_improves_over_initialisation(tiny_scene_dir, tiny_scene, tmp_p
     # diagnostics run after evaluation; the synthetic scene has ground-truth motion
     assert (tmp_path / "b" / "diagnostics" / "lifetime_histogram.png").exists()
     assert "motion_epe_dynamic" in after.metrics and "lifetime_long_on_static" in after.metrics
+    for score in ("lifetime_partition_contrast", "motion_role_switch", "flicker_static", "flicker_static_gt"):
+        assert score in after.metrics, score  # the claims' ground-truth scores reach the tracker
 
 
 def test_same_seed_gives_bit_identical_parameters(tiny_scene_dir, tiny_scene, tmp_path):
