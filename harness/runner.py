@@ -19,13 +19,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import shlex
 import time
 import traceback
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -40,7 +42,7 @@ from harness.plan import PlannedRun, plan_runs, resolve
 from harness.provenance import git_sha, resolve_backend, resolve_device
 from harness.records import RunRecord, experiment_name, load_runs
 from harness.scenes import Generator, ensure_scene
-from harness.studies import Selection, StudySpec, expand, load_study
+from harness.studies import SceneSpec, Selection, StudySpec, expand, load_study
 from harness.tracking import MlflowTracker, Store, check_store, resolve_uri
 
 OUT_ROOT = Path("outputs/studies")
@@ -301,6 +303,22 @@ def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jo
     return parent_id, stamp
 
 
+@contextlib.contextmanager
+def _scene_lock(scene: SceneSpec) -> Iterator[None]:
+    """An exclusive ``fcntl`` lock on ``<scene folder>.lock`` (synthetic scenes only)."""
+    if scene.synth is None:
+        yield
+        return
+    lock = Path(scene.synth_dir).with_name(Path(scene.synth_dir).name + ".lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 def _tally(outcome: StudyOutcome, todo: list[PlannedRun], returns: list[Any]) -> None:
     for run, ret in zip(todo, returns):
         try:
@@ -380,7 +398,8 @@ def run_study(
         return outcome
 
     for scene in {p.spec.scene.name: p.spec.scene for p in todo}.values():
-        ensure_scene(scene, generate, echo)
+        with _scene_lock(scene):  # another invocation may be generating it right now
+            ensure_scene(scene, generate, echo)
     parent_id, stamp = _open_parent(store, exp_id, study, sel, jobs, launcher, planned, todo)
     outcome.parent_run_id = parent_id
     # absolute: submitit's folder lives under it and jobs on other nodes must find it
