@@ -49,6 +49,24 @@ def _filter_row(src, dst, taps, n_ch):
             d[j] += w * s[j]
 
 
+@njit(**_JIT)
+def _filter_column(src, r, height, taps, out):
+    """out[q] = taps (*) src[q] down the image column at row r (zero padded at the image's
+    top and bottom; rows of one image are consecutive, ``height`` of them). src [Q, rows, L]."""
+    out[:] = 0.0
+    top = r - r % height
+    for k in range(taps.shape[0]):
+        src_row = r + k - RADIUS
+        if src_row < top or src_row >= top + height:
+            continue
+        w = taps[k]
+        for q in range(src.shape[0]):
+            o = out[q]
+            s = src[q, src_row]
+            for j in range(o.shape[0]):
+                o[j] += w * s[j]
+
+
 @njit(parallel=True, **_JIT)
 def ssim_forward(
     x: np.ndarray,  # [B * H, W * C] float32
@@ -80,16 +98,8 @@ def ssim_forward(
     row_sums = np.empty(rows, np.float64)
     two = np.float32(2.0)
     for r in prange(rows):
-        m = np.zeros((5, length), np.float32)
-        yy = r % height
-        for k in range(taps.shape[0]):
-            src = yy + k - RADIUS
-            if src < 0 or src >= height:
-                continue
-            w = taps[k]
-            for q in range(5):
-                for j in range(length):
-                    m[q, j] += w * hx[q, r + k - RADIUS, j]
+        m = np.empty((5, length), np.float32)
+        _filter_column(hx, r, height, taps, m)
         total = 0.0
         for j in range(length):
             mx, my = m[0, j], m[1, j]
@@ -140,16 +150,8 @@ def ssim_backward(
     gy = np.empty((rows if want_y else 0, length), np.float32)
     two = np.float32(2.0)
     for r in prange(rows):
-        f = np.zeros((4, length), np.float32)  # filtered partials at this row
-        yy = r % height
-        for k in range(taps.shape[0]):
-            src = yy + k - RADIUS
-            if src < 0 or src >= height:
-                continue
-            w = taps[k]
-            for q in range(4):
-                for j in range(length):
-                    f[q, j] += w * hp[q, r + k - RADIUS, j]
+        f = np.empty((4, length), np.float32)  # filtered partials at this row
+        _filter_column(hp, r, height, taps, f)
         scale = row_scale[r]
         for j in range(length):
             if want_x:

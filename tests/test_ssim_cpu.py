@@ -6,11 +6,11 @@ by PyTorch autograd, and scipy's zero-padded Gaussian filter (in test_metrics.py
 
 from __future__ import annotations
 
-import numba
 import pytest
 import torch
 
 from ftgspp.metrics import SSIM_WINDOW, _nchw, _ssim_map, ssim_same
+from tests.numba_threads import under_thread_counts
 
 
 def autograd_ssim_same(a: torch.Tensor, b: torch.Tensor, data_range: float) -> torch.Tensor:
@@ -57,17 +57,13 @@ def test_unbatched_image_gives_a_scalar_and_only_requested_gradients() -> None:
 
 def test_bitwise_deterministic_across_thread_counts() -> None:
     a, b = pair((2, 33, 41, 3), 5)
-    results = []
-    threads = [1, 2] if numba.config.NUMBA_NUM_THREADS >= 2 else [1]
-    before = numba.get_num_threads()
-    try:
-        for n_threads in threads + [threads[-1]]:
-            numba.set_num_threads(n_threads)
-            x = a.clone().requires_grad_(True)
-            value = ssim_same(x, b)
-            value.sum().backward()
-            results.append((value.detach(), x.grad))
-    finally:
-        numba.set_num_threads(before)
+
+    def once():
+        x = a.clone().requires_grad_(True)
+        value = ssim_same(x, b)
+        value.sum().backward()
+        return value.detach(), x.grad
+
+    results = under_thread_counts(once)
     for value, grad in results[1:]:
         assert torch.equal(value, results[0][0]) and torch.equal(grad, results[0][1])

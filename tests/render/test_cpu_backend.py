@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import pytest
 import torch
@@ -19,6 +18,7 @@ import torch
 from ftgspp.render import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
 from ftgspp.render import cpu
 from ftgspp.render.reference import rasterize as reference_rasterize
+from tests.numba_threads import under_thread_counts
 
 WIDTH, HEIGHT = 53, 41  # 4 x 3 tiles, the last row and column partial
 
@@ -197,15 +197,7 @@ def test_matches_float64_contract_loop() -> None:
 
 def test_bitwise_deterministic_across_runs_and_thread_counts() -> None:
     scene = make_scene(4)
-    results = []
-    threads = [1, 2] if numba.config.NUMBA_NUM_THREADS >= 2 else [1]
-    before = numba.get_num_threads()
-    try:
-        for n_threads in threads + [threads[-1]]:
-            numba.set_num_threads(n_threads)
-            results.append(run(cpu.rasterize, scene))
-    finally:
-        numba.set_num_threads(before)
+    results = under_thread_counts(lambda: run(cpu.rasterize, scene))
     (out0, grads0) = results[0]
     for out, grads in results[1:]:
         assert all(torch.equal(a, b) for a, b in zip(out0, out))

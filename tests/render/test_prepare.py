@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import pytest
 import torch
@@ -24,6 +23,7 @@ from ftgspp.render.prepare import PARAM_NAMES, prepare
 from ftgspp.render.project import project
 from ftgspp.render.sh import eval_sh
 from ftgspp.view import camera_tensors, render_view
+from tests.numba_threads import under_thread_counts
 
 W, H = 53, 41
 OUTPUTS = ("means2d", "conics", "colors", "opacities", "depths", "temporal", "means")
@@ -178,15 +178,7 @@ def test_colour_depends_on_camera_centre() -> None:
 def test_bitwise_deterministic_across_runs_and_thread_counts() -> None:
     model = make_model(5, CONFIGS[2])
     cam = make_camera()
-    results = []
-    threads = [1, 2] if numba.config.NUMBA_NUM_THREADS >= 2 else [1]
-    before = numba.get_num_threads()
-    try:
-        for n_threads in threads + [threads[-1]]:
-            numba.set_num_threads(n_threads)
-            results.append(run(fused_path, model, cam, 0.4, 3))
-    finally:
-        numba.set_num_threads(before)
+    results = under_thread_counts(lambda: run(fused_path, model, cam, 0.4, 3))
     out0, grads0 = results[0]
     for out, grads in results[1:]:
         assert all(torch.equal(out0[k], out[k]) for k in out0)
