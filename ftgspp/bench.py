@@ -387,14 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--no-compile-times", action="store_true", help="skip the Numba compile probe")
     render.add_argument("--seed", type=int, default=0)
     render.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
-    train = sub.add_parser("train", help="whole training iterations of every backend (ftgspp/bench_train.py)")
-    train.add_argument("--iterations", type=int, default=200)
-    train.add_argument("--budget", type=int, default=5000, help="number of Gaussians")
-    train.add_argument("--repeats", type=int, default=2)
-    train.add_argument("--width", type=int, default=128)
-    train.add_argument("--height", type=int, default=96)
-    train.add_argument("--backends", default="", help="comma-separated (default: every available one)")
-    train.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
+    from ftgspp.bench_train import add_parsers
+
+    add_parsers(sub)  # train, scale
     return parser
 
 
@@ -408,15 +403,9 @@ def main(argv: list[str] | None = None) -> int:
         )  # fmt: skip
         print(json.dumps(result) if args.json else format_render_table(result))
         return 0
-    if args.command == "train":
-        from ftgspp.bench_train import bench_train, format_train_table
+    from ftgspp.bench_train import run
 
-        result = bench_train(iterations=args.iterations, budget=args.budget, repeats=args.repeats,
-                             width=args.width, height=args.height,
-                             backends=[b for b in args.backends.split(",") if b] or None)
-        print(json.dumps(result) if args.json else format_train_table(result))
-        return 0
-    return 2
+    return run(args)
 
 
 if __name__ == "__main__":
