@@ -6,7 +6,8 @@ PIP    := $(PY) -m pip
 SCENE  ?= data/synth/studio
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo train-quick test weights bench clean reports
+.PHONY: install demo train-quick test weights bench clean
+.PHONY: server test-cluster reports
 
 # torch 2.13.0 (CPU) goes in first, alone, so nothing later pulls a multi-GB CUDA build.
 $(STAMP): pyproject.toml
@@ -52,6 +53,17 @@ reports: install weights
 
 test: install weights
 	$(VENV)/bin/python -m pytest -q
+
+# The multi-user tracking server (docs/cluster.md): PostgreSQL + mlflow server with proxied
+# artifacts on 127.0.0.1:5000, data in ./tracking-server. Ctrl-C stops both.
+server: install
+	$(VENV)/bin/ftgspp-server --root tracking-server
+
+# Real PostgreSQL, real one-node SLURM, headless Chromium (installs them from Debian as
+# root first; about 10 minutes on 2 cores). Not part of `make test`.
+test-cluster: install
+	bash tests/cluster/install.sh
+	$(VENV)/bin/python -m pytest -q -s -p no:cacheprovider tests/cluster/cluster_*.py
 
 bench: install
 	$(VENV)/bin/ftgspp bench render

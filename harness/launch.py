@@ -32,6 +32,7 @@ def launch(
     jobs: int = 1,
     job_name: str = "study",
     launcher: str = "basic",
+    launcher_args: Sequence[str] = (),
 ) -> list[Any]:
     """Run ``task`` once per override list; returns Hydra ``JobReturn`` objects in order."""
     from hydra import initialize_config_dir
@@ -45,7 +46,7 @@ def launch(
         loader = GlobalHydra.instance().config_loader()
         master = loader.load_configuration(
             config_name="train",
-            overrides=launcher_overrides(launcher, sweep_dir, jobs, job_name),
+            overrides=[*launcher_overrides(launcher, sweep_dir, jobs, job_name), *launcher_args],
             run_mode=RunMode.MULTIRUN,
         )
         context = HydraContext(config_loader=loader, callbacks=Callbacks(master))

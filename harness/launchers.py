@@ -18,7 +18,10 @@ runs from the tracking store, where every run records itself.
 
 ``check_launcher`` turns a launcher that cannot work into one ``InputError`` line before
 anything is written: ``sbatch`` missing, or a SQLite file store with SLURM (jobs on other
-nodes cannot share a SQLite file safely; they need ``mlflow server``).
+nodes cannot share a SQLite file safely; they need ``mlflow server``), or a
+``hydra.launcher.KEY=VALUE`` override the chosen launcher does not have. Those overrides
+(``split_launcher_args``) configure the launcher, not the runs: they are not part of any
+run's config or hash.
 """
 
 from __future__ import annotations
@@ -53,6 +56,32 @@ def check_launcher(launcher: str, uri: str) -> None:
         if sqlite_path(uri) is not None:
             raise InputError("--launcher slurm", f"jobs on other nodes cannot share the SQLite store {uri};"
                              f" {SERVER_HINT}")
+
+
+LAUNCHER_PREFIX = "hydra.launcher."
+
+
+def split_launcher_args(overrides: list[str]) -> tuple[list[str], list[str]]:
+    """(run overrides, ``hydra.launcher.*`` overrides) of a ``study run`` command line."""
+    ours = [o for o in overrides if o.startswith(LAUNCHER_PREFIX)]
+    return [o for o in overrides if not o.startswith(LAUNCHER_PREFIX)], ours
+
+
+def check_launcher_args(launcher: str, args: list[str], sweep_dir: Path) -> None:
+    """Compose the launcher's config with ``args``; one ``InputError`` line if it does not."""
+    if not args:
+        return
+    from hydra import compose, initialize_config_dir
+
+    from harness.plan import error_line
+    from harness.schema import CONF_DIR, register
+
+    register()
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            compose("train", [*launcher_overrides(launcher, sweep_dir, 2, "check"), *args], return_hydra_config=True)
+    except Exception as exc:  # unknown key or wrong type for this launcher
+        raise InputError(" ".join(args), f"not valid for --launcher {launcher} ({error_line(exc)})") from None
 
 
 def launcher_overrides(launcher: str, sweep_dir: Path, jobs: int, job_name: str) -> list[str]:

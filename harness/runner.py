@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import fcntl
 import json
 import shlex
@@ -37,7 +38,7 @@ from harness import lease, progress
 from harness.confighash import config_hash, flatten_config
 from harness.conventions import scene_dataset, source_tags, system_metrics
 from harness.launch import launch
-from harness.launchers import check_launcher
+from harness.launchers import check_launcher, check_launcher_args, split_launcher_args
 from harness.plan import PlannedRun, plan_runs, resolve
 from harness.provenance import git_sha, resolve_backend, resolve_device
 from harness.records import RunRecord, experiment_name, load_runs
@@ -279,15 +280,16 @@ def pending(store: Store, experiment: str, study: str, planned: list[PlannedRun]
 
 
 def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jobs: int, launcher: str,
-                 planned: list[PlannedRun], todo: list[PlannedRun]) -> tuple[str, str]:
+                 launcher_args: list[str], command: str, planned: list[PlannedRun],
+                 todo: list[PlannedRun]) -> tuple[str, str]:
     """The invocation's parent run (tags, params, the study file); returns (run id, stamp)."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    command = command_line(study.name, sel, jobs, launcher)
     tags = {
         "study": study.name,
         "profile": sel.profile,
         "kind": "study",
-        "invocation": json.dumps({**asdict(sel), "jobs": jobs, "launcher": launcher}),
+        "invocation": json.dumps({**asdict(sel), "jobs": jobs, "launcher": launcher,
+                                  "launcher_overrides": launcher_args}),
         "command": command,
         **source_tags(command),
         "git_sha": git_sha(),
@@ -376,9 +378,13 @@ def run_study(
     except ValueError as exc:
         raise InputError("--lease", str(exc)) from None
     study = load_study(name, studies_dir)
+    command = command_line(name, sel, jobs, launcher)
+    run_overrides, launcher_args = split_launcher_args(sel.overrides)
+    sel = dataclasses.replace(sel, overrides=run_overrides)
     planned = plan_runs(expand(study, sel))  # every bad input stops here ...
     uri, exp_name = tracking_target(sel, planned)
     check_launcher(launcher, uri)
+    check_launcher_args(launcher, launcher_args, Path(out_root).resolve())
     check_store(uri)  # ... or here, before anything is written
 
     store = Store(uri)
@@ -400,7 +406,7 @@ def run_study(
     for scene in {p.spec.scene.name: p.spec.scene for p in todo}.values():
         with _scene_lock(scene):  # another invocation may be generating it right now
             ensure_scene(scene, generate, echo)
-    parent_id, stamp = _open_parent(store, exp_id, study, sel, jobs, launcher, planned, todo)
+    parent_id, stamp = _open_parent(store, exp_id, study, sel, jobs, launcher, launcher_args, command, planned, todo)
     outcome.parent_run_id = parent_id
     # absolute: submitit's folder lives under it and jobs on other nodes must find it
     sweep_dir = (Path(out_root) / name / f"{stamp}-{parent_id[:8]}").resolve()
@@ -413,14 +419,14 @@ def run_study(
         started_at=time.time(),
         train_fn=train_fn,
         lease_s=lease_s,
-        command=command_line(name, sel, jobs, launcher),
+        command=command,
     )
     # progress bars of parallel workers would interleave (progress is not part of the hash)
     quiet = ["progress=false"] if jobs > 1 or launcher in ("local", "slurm") else []
     job_overrides = [[*p.spec.overrides, *quiet, f"hydra.sweep.subdir={p.spec.label}"] for p in todo]
     try:
         returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=jobs, job_name=f"study_{name}",
-                         launcher=launcher)
+                         launcher=launcher, launcher_args=launcher_args)
         _tally(outcome, todo, returns)
     except Exception as exc:  # e.g. submitit's UncompletedJobError: a job died without returning
         if launcher not in ("local", "slurm"):

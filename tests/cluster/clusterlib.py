@@ -88,3 +88,19 @@ def pg_server():
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(timeout=30)
         shutil.rmtree(root, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def slurm_cluster():
+    """A one-node SLURM (``slurm_one_node.sh``) in a fresh folder; ``SLURM_CONF`` for clients."""
+    require(os.geteuid() == 0, "root (slurm_one_node.sh starts munged, slurmctld and slurmd)")
+    require(shutil.which("slurmctld") is not None or Path("/usr/sbin/slurmctld").exists(), "slurm-wlm (Debian)")
+    root = public_tmpdir("ftgspp-slurm-")
+    script = HERE / "slurm_one_node.sh"
+    started = subprocess.run(["bash", str(script), "start", str(root)], capture_output=True, text=True, timeout=180)
+    require(started.returncode == 0, f"a one-node SLURM: {started.stdout[-1000:]} {started.stderr[-2000:]}")
+    try:
+        yield {"conf": str(root / "slurm.conf"), "root": root}
+    finally:
+        subprocess.run(["bash", str(script), "stop", str(root)], timeout=60)
+        shutil.rmtree(root, ignore_errors=True)

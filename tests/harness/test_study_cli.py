@@ -120,7 +120,8 @@ def _fake_sbatch(folder: Path) -> str:
     return str(folder)
 
 
-@pytest.mark.parametrize("case", ["unknown_launcher", "no_sbatch", "slurm_sqlite", "db_refused", "bad_lease"])
+@pytest.mark.parametrize("case", ["unknown_launcher", "no_sbatch", "slurm_sqlite", "db_refused", "bad_lease",
+                                  "bad_launcher_key", "launcher_key_for_basic"])
 def test_scale_out_bad_input_is_one_line_exit_2_and_writes_nothing(case: str, workdir: Path, fakes_on: None,
                                                                    monkeypatch: pytest.MonkeyPatch,
                                                                    capsys: pytest.CaptureFixture[str]) -> None:
@@ -133,6 +134,8 @@ def test_scale_out_bad_input_is_one_line_exit_2_and_writes_nothing(case: str, wo
         "db_refused": ([f"tracking.uri=postgresql+psycopg://me:secret@127.0.0.1:{_free_port()}/mlflow"],
                        "database refused the connection"),
         "bad_lease": (["--lease", "0"], "--lease"),
+        "bad_launcher_key": (["--launcher", "local", "hydra.launcher.gpus=1"], "not valid for --launcher local"),
+        "launcher_key_for_basic": (["hydra.launcher.timeout_min=5"], "not valid for --launcher basic"),
     }[case]
     path = bin_dir.as_posix() if case == "no_sbatch" else f"{_fake_sbatch(bin_dir)}:{Path('/usr/bin')}"
     monkeypatch.setenv("PATH", path)
