@@ -6,8 +6,8 @@ PIP    := $(PY) -m pip
 SCENE  ?= data/synth/studio
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo train-quick test weights bench clean
-.PHONY: server test-cluster reports
+.PHONY: install demo train-quick test weights bench clean reports
+.PHONY: server test-cluster
 
 # torch 2.13.0 (CPU) goes in first, alone, so nothing later pulls a multi-GB CUDA build.
 $(STAMP): pyproject.toml
