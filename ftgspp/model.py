@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
@@ -28,14 +29,29 @@ SH_C0 = 0.28209479177387814
 
 @dataclass
 class GaussiansAt:
-    """The 3D Gaussians of a model evaluated at one time."""
+    """The 3D Gaussians of a model evaluated at one time.
+
+    ``scales`` (activated) and ``sh`` (DC and rest concatenated) are computed from the
+    parameters on first access, so that renderers that do not need them pay nothing.
+    """
 
     means: torch.Tensor  # [N, 3]
     quats: torch.Tensor  # [N, 4]
-    scales: torch.Tensor  # [N, 3] activated
     opacities: torch.Tensor  # [N] sigmoid(o) * phi(t)
-    sh: torch.Tensor  # [N, K, 3]
     temporal: torch.Tensor  # [N] phi(t)
+    log_scales: torch.Tensor  # [N, 3]
+    sh0: torch.Tensor  # [N, 1, 3]
+    shN: torch.Tensor  # [N, K - 1, 3]
+
+    @cached_property
+    def scales(self) -> torch.Tensor:
+        """Activated scales exp(S), ``[N, 3]``."""
+        return torch.exp(self.log_scales)
+
+    @cached_property
+    def sh(self) -> torch.Tensor:
+        """SH coefficients, ``[N, K, 3]``."""
+        return torch.cat([self.sh0, self.shN], dim=1)
 
 
 class FreeTimeGaussians(nn.Module):
@@ -116,10 +132,11 @@ class FreeTimeGaussians(nn.Module):
         return GaussiansAt(
             means=means,
             quats=p["quats"],
-            scales=torch.exp(p["scales"]),
             opacities=self.base_opacity() * phi,
-            sh=torch.cat([p["sh0"], p["shN"]], dim=1),
             temporal=phi,
+            log_scales=p["scales"],
+            sh0=p["sh0"],
+            shN=p["shN"],
         )
 
     def lifetimes(self, threshold: float) -> torch.Tensor:

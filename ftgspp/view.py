@@ -74,6 +74,6 @@ def _render_view_fused(
         means2d.retain_grad()
     image, alpha, depth = rasterize(means2d, prep.conics, prep.colors if colors is None else colors, prep.opacities,
                                     prep.depths, prep.radii, cam.width, cam.height, background)  # fmt: skip
-    g = GaussiansAt(means=prep.means, quats=p["quats"], scales=torch.exp(p["scales"]), opacities=prep.opacities,
-                    sh=torch.cat([p["sh0"], p["shN"]], dim=1), temporal=prep.temporal)  # fmt: skip
+    g = GaussiansAt(means=prep.means, quats=p["quats"], opacities=prep.opacities, temporal=prep.temporal,
+                    log_scales=p["scales"], sh0=p["sh0"], shN=p["shN"])  # fmt: skip
     return RenderOutput(image, alpha, depth, means2d, prep.radii, prep.depths), g

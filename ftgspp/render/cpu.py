@@ -69,9 +69,9 @@ def depth_sort_keys(depths: np.ndarray) -> np.ndarray:
     return np.where(negative, ~bits, bits | np.uint32(0x80000000)).astype(np.uint32)
 
 
-def _f32(t: Tensor, copy: bool = False) -> np.ndarray:
-    """Contiguous float32 numpy array of ``t``; with ``copy``, never a view of ``t``."""
-    return np.ascontiguousarray(t.detach().to("cpu", torch.float32, copy=copy).numpy())
+def f32_array(t: Tensor) -> np.ndarray:
+    """Contiguous float32 numpy array of ``t`` (a view when ``t`` already is one, on the CPU)."""
+    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
 
 
 def _forward(
@@ -99,11 +99,13 @@ class _RasterizeCPU(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means2d, conics, colors, opacities, depths, background, radii, width, height):
-        # Copies: the backward pass must see these values even if the caller edits its tensors.
-        arrays = [_f32(t, copy=True) for t in (means2d, conics, colors, opacities, depths, background)]
+        inputs = (means2d, conics, colors, opacities, depths, background)
+        arrays = [f32_array(t) for t in inputs]  # views of float32 CPU tensors
         rad = np.ascontiguousarray(radii.detach().to("cpu", torch.int64).numpy())  # [N]
         binning, fwd = _forward(*arrays, rad, width, height)
-        ctx.arrays, ctx.binning, ctx.fwd = arrays, binning, fwd
+        # Saved, not copied: editing an input in place before backward raises PyTorch's error.
+        ctx.save_for_backward(*inputs)
+        ctx.binning, ctx.fwd = binning, fwd
         ctx.in_dtypes = [t.dtype for t in (means2d, conics, colors, opacities, depths, background)]
         ctx.device = means2d.device
 
@@ -114,12 +116,12 @@ class _RasterizeCPU(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_image, grad_alpha, grad_depth):
-        m2d, con, col, opa, dep, bg = ctx.arrays
+        m2d, con, col, opa, dep, bg = [f32_array(t) for t in ctx.saved_tensors]
         binning, fwd = ctx.binning, ctx.fwd
         height, width, n_dim = fwd.image.shape
 
         def cotangent(g: Tensor | None, shape: tuple[int, ...]) -> np.ndarray:
-            return np.zeros(shape, np.float32) if g is None else _f32(g).reshape(shape)
+            return np.zeros(shape, np.float32) if g is None else f32_array(g).reshape(shape)
 
         workers = _k.balance_tiles(fwd.tile_work, numba.get_num_threads())
         pair_grads, bg_grads = _k.render_backward(

@@ -24,8 +24,8 @@ import torch
 from torch import Tensor
 
 from ftgspp.render import EPS2D
-from ftgspp.render import cpu as _cpu  # noqa: F401  (chooses the Numba threading layer first)
-from ftgspp.render import prepare_kernels as _pk
+from ftgspp.render.cpu import f32_array as _np  # (importing cpu chooses the Numba threading layer first)
+from ftgspp.render import prepare_kernels as _pk  # noqa: E402
 
 # Model parameters the kernel reads, in kernel argument order.
 PARAM_NAMES = ("means", "velocities", "times", "durations", "scales", "quats", "opacities", "gates", "sh0", "shN")
@@ -59,11 +59,6 @@ def camera_row(K: Tensor, width: int, height: int, near_plane: float, eps2d: flo
     row[_pk.CAM_LOY] = -(cy / fy + f32(0.3) * tan_half_y)
     row[_pk.CAM_HIY] = (f32(height) - cy) / fy + f32(0.3) * tan_half_y
     return row
-
-
-def _np(t: Tensor) -> np.ndarray:
-    """Contiguous float32 numpy view (or copy) of ``t``."""
-    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
 
 
 class _PrepareCPU(torch.autograd.Function):

@@ -349,3 +349,16 @@ def test_bench_render_prints_one_json_line(capsys: pytest.CaptureFixture[str]) -
         assert t["fwd_ms"] > 0 and t["fwd_bwd_ms"] > 0 and result["ratios"][name]["fwd_bwd"] > 0
     assert (result["n"], result["width"], result["height"]) == (200, 40, 30)
     assert set(result["numba_compile_s"]) == {"cold", "cached"}
+
+
+def test_editing_an_input_before_backward_raises() -> None:
+    """Inputs are saved, not copied: an in-place edit before backward is an error, never stale gradients."""
+    scene = make_scene(10)
+    leaf = scene["means2d"].clone().requires_grad_(True)
+    means2d = leaf * 1.0
+    image, _, _ = cpu.rasterize(means2d, scene["conics"], scene["colors"], scene["opacities"], scene["depths"],
+                                scene["radii"], WIDTH, HEIGHT)  # fmt: skip
+    with torch.no_grad():
+        means2d.add_(1.0)
+    with pytest.raises(RuntimeError, match="inplace"):
+        image.sum().backward()

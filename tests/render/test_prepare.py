@@ -221,3 +221,12 @@ def test_bad_sh_degree_is_rejected() -> None:
     viewmat, K, centre = camera_tensors(make_camera(), "cpu")
     with pytest.raises(ValueError, match="SH coefficients"):
         prepare(model.params, 0.0, viewmat, K, centre, W, H, 2, None, False, 20.0)
+
+
+def test_parameter_edited_before_backward_raises() -> None:
+    model = make_model(4, CONFIGS[1])
+    out = fused_path(model, make_camera(), 0.4, 1)
+    with torch.no_grad():
+        model.params["means"].add_(0.1)  # e.g. an optimizer step between forward and backward
+    with pytest.raises(RuntimeError, match="inplace"):
+        out["means2d"].sum().backward()
