@@ -443,4 +443,18 @@ def run_study(
     elsewhere_txt = f", {outcome.claimed_elsewhere} claimed by other invocations" if outcome.claimed_elsewhere else ""
     echo(f"{name}: {outcome.finished} finished, {outcome.failed} failed ({outcome.diverged} diverged),"
          f" {outcome.skipped} skipped{elsewhere_txt}; parent run {parent_id} in {exp_name} at {uri}")
+    echo(f"browse: {ui_link(uri, exp_id)}")
     return outcome
+
+
+def ui_link(uri: str, experiment_id: str) -> str:
+    """Where the experiment's runs table is in the MLflow UI.
+
+    MLflow 3.17's UI opens every experiment in the GenAI view unless the browser chose
+    "Model training" before (it ignores ``mlflow.experimentKind`` there); the
+    ``workflowType`` parameter selects the training-runs view.
+    """
+    page = f"#/experiments/{experiment_id}/runs?workflowType=machine_learning"
+    if uri.startswith(("http://", "https://")):
+        return f"{uri.rstrip('/')}/{page}"
+    return f"mlflow ui --backend-store-uri {uri}, then http://127.0.0.1:5000/{page}"
