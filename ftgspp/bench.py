@@ -13,6 +13,11 @@ memory stays bounded -- is timed too, so that speed-ups stay comparable when the
 backend changes. Numba compile time of the ``cpu`` kernels is measured cold (a subprocess
 with an empty ``NUMBA_CACHE_DIR``) and cached (a second subprocess reusing it).
 
+With the ``cpu`` backend it also times the other stages of a training render, each against
+the PyTorch version it replaces: time evaluation + SH colour + projection (the fused Numba
+node vs ``at_time`` / ``eval_sh`` / ``project`` under autograd), and the SSIM loss (Numba
+kernels vs grouped ``conv2d``), forward + backward.
+
 Wall-clock figures depend on the machine and on what else runs on it; compare ratios
 measured in one run. ``bench train`` (``bench_train.py``) times whole training iterations.
 """
@@ -250,18 +255,27 @@ def time_yardstick(inputs: dict[str, Any], cotangents: tuple[Tensor, ...]) -> tu
 
 _COMPILE_SNIPPET = """
 import time, torch
+from ftgspp.bench import _stage_model, random_scene
+from ftgspp.metrics import ssim_same
 from ftgspp.render import cpu
+from ftgspp.render.prepare import prepare
 m = torch.tensor([[8.0, 8.0], [20.0, 9.0]], requires_grad=True)
 args = (m, torch.tensor([[0.1, 0.0, 0.1]] * 2), torch.rand(2, 3), torch.rand(2), torch.ones(2))
+scene = random_scene(4, 32, 24)
+model = _stage_model(scene, 0)
 t0 = time.perf_counter()
 out = cpu.rasterize(*args, torch.tensor([6, 6]), 32, 24)
 sum(o.sum() for o in out).backward()
+p = prepare(model.params, 0.5, scene["viewmat"], scene["K"], torch.zeros(3), 32, 24, 3, 1.0, True, 20.0)
+(p.means2d.sum() + p.colors.sum()).backward()
+(1 - ssim_same(torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3))).backward()
 print(time.perf_counter() - t0)
 """
 
 
 def numba_compile_seconds() -> dict[str, float | None]:
-    """First-call time of the cpu kernels: cold (empty Numba cache) and cached, in seconds."""
+    """First-call time of the cpu kernels (rasterizer, fused prepare node, SSIM loss): cold
+    (empty Numba cache) and cached, in seconds."""
     result: dict[str, float | None] = {"cold": None, "cached": None}
     with tempfile.TemporaryDirectory(prefix="ftgspp-numba-") as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
@@ -272,6 +286,92 @@ def numba_compile_seconds() -> dict[str, float | None]:
                 break
             result[key] = float(proc.stdout.strip().splitlines()[-1])
     return result
+
+
+# ------------------------------------------------------------------------ other stages
+
+
+def _stage_model(scene: dict[str, Any], seed: int) -> Any:
+    """A FreeTimeGS++ model (gate on, max_duration 1 s, SH degree 3) whose Gaussians at t = 0.5
+    are ``scene``'s 3D Gaussians (the bench camera sits at the world origin)."""
+    from ftgspp.config import ModelConfig
+    from ftgspp.model import FreeTimeGaussians
+
+    g = torch.Generator().manual_seed(seed + 2)
+    n = scene["means"].shape[0]
+    times = torch.rand(n, generator=g)
+    velocities = 0.05 * torch.randn(n, 3, generator=g)
+    params = {
+        "means": scene["means"] - velocities * (0.5 - times)[:, None],
+        "velocities": velocities,
+        "times": times,
+        "durations": torch.randn(n, generator=g),
+        "scales": torch.log(scene["scales"]),
+        "quats": scene["quats"],
+        "opacities": torch.logit(scene["opacities"].clamp(1e-4, 1 - 1e-4)),
+        "sh0": ((scene["colors"] - 0.5) / 0.28209479177387814)[:, None, :],
+        "shN": 0.05 * torch.randn(n, 15, 3, generator=g),
+        "gates": -1.0 + 0.1 * torch.randn(n, generator=g),
+    }
+    return FreeTimeGaussians(params, ModelConfig(max_duration=1.0, gate=True))
+
+
+def time_stages(scene: dict[str, Any], repeats: int, seed: int = 0) -> dict[str, dict[str, float]]:
+    """Median forward + backward milliseconds of the other stages of a ``cpu`` training render.
+
+    ``prepare``: time evaluation + SH colour (degree 3) + EWA projection, as PyTorch autograd
+    (``at_time``, ``eval_sh``, ``project``: the ``reference`` path) and as the fused Numba node.
+    ``ssim_loss``: 1 - SSIM of a rendered-size image, grouped ``conv2d`` vs the Numba kernels.
+    """
+    from ftgspp.metrics import SSIM_WINDOW, _nchw, _ssim_map, ssim_same
+    from ftgspp.render.prepare import prepare
+    from ftgspp.render.project import project
+    from ftgspp.render.sh import eval_sh
+
+    model = _stage_model(scene, seed)
+    params, width, height = model.params, scene["width"], scene["height"]
+    viewmat, K, centre = scene["viewmat"], scene["K"], torch.zeros(3)
+    g = torch.Generator().manual_seed(seed + 3)
+    n = len(model)
+    cot = [torch.randn(n, k, generator=g) for k in (2, 3, 3)] + [torch.randn(n, generator=g) for _ in range(2)]
+
+    def weighted(outputs: tuple[Tensor, ...]) -> Tensor:
+        return sum((o * c).sum() for o, c in zip(outputs, cot))
+
+    def autograd_prepare() -> None:
+        at = model.at_time(0.5)
+        dirs = at.means - centre
+        colors = eval_sh(3, at.sh, dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8))
+        means2d, conics, depths, _, _ = project(at.means, at.quats, at.scales, viewmat, K, width, height)
+        weighted((means2d, conics, colors, at.opacities, depths)).backward()
+
+    def fused_prepare() -> None:
+        p = prepare(params, 0.5, viewmat, K, centre, width, height, 3, 1.0, True, model.cfg.gate_gamma)
+        weighted((p.means2d, p.conics, p.colors, p.opacities, p.depths)).backward()
+
+    pred = torch.rand(height, width, 3, generator=g).requires_grad_(True)
+    gt = torch.rand(height, width, 3, generator=g)
+
+    def conv_ssim() -> None:
+        ssim = _ssim_map(_nchw(pred[None]), _nchw(gt[None]), 1.0, padding=SSIM_WINDOW // 2).mean()
+        (1.0 - ssim).backward()
+
+    def numba_ssim() -> None:
+        (1.0 - ssim_same(pred, gt)).backward()
+
+    stages = {"prepare": {"autograd": autograd_prepare, "fused": fused_prepare},
+              "ssim_loss": {"conv2d": conv_ssim, "numba": numba_ssim}}  # fmt: skip
+    samples: dict[str, dict[str, list[float]]] = {k: {v: [] for v in fns} for k, fns in stages.items()}
+    for r in range(repeats + 2):  # the first two are warm-up
+        for stage, fns in stages.items():
+            for variant, fn in fns.items():
+                t0 = time.perf_counter()
+                fn()
+                if r >= 2:
+                    samples[stage][variant].append(1e3 * (time.perf_counter() - t0))
+        for p in [*params.values(), pred]:
+            p.grad = None
+    return {stage: {f"{v}_ms": statistics.median(t) for v, t in variants.items()} for stage, variants in samples.items()}
 
 
 # ------------------------------------------------------------------------------ render
@@ -339,6 +439,7 @@ def bench_render(
 
         result["numba_threading_layer"] = cpu.threading_layer()
         result["numba_threads"] = __import__("numba").get_num_threads()
+        result["stages"] = time_stages(random_scene(n, width, height, seed), repeats, seed)
     result["numba_compile_s"] = numba_compile_seconds() if compile_times else {"cold": None, "cached": None}
     return result
 
@@ -358,6 +459,15 @@ def format_render_table(result: dict[str, Any]) -> str:
         rf = f"{ratio['fwd']:.1f}" if ratio else "-"
         rb = f"{ratio['fwd_bwd']:.1f}" if ratio else "-"
         lines.append(f"{name:<11}{t['fwd_ms']:>12.2f}{t['fwd_bwd_ms']:>13.2f}{rf:>17}{rb:>21}")
+    stages = result.get("stages", {})
+    if "prepare" in stages:
+        t = stages["prepare"]
+        lines.append(f"time eval + SH + projection, fwd+bwd: autograd {t['autograd_ms']:.2f} ms, "
+                     f"fused cpu {t['fused_ms']:.2f} ms ({t['autograd_ms'] / t['fused_ms']:.1f}x)")
+    if "ssim_loss" in stages:
+        t = stages["ssim_loss"]
+        lines.append(f"SSIM loss, fwd+bwd: conv2d {t['conv2d_ms']:.2f} ms, numba {t['numba_ms']:.2f} ms "
+                     f"({t['conv2d_ms'] / t['numba_ms']:.1f}x)")
     compile_s = result["numba_compile_s"]
     if compile_s.get("cold") is not None:
         lines.append(f"numba compile: cold {compile_s['cold']:.1f} s, cached {compile_s['cached']:.2f} s")

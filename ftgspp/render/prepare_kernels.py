@@ -408,7 +408,8 @@ def prepare_backward(
             # --- projection. Camera-space cotangent g_p, starting with the depth output.
             px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn = _geometry(i, mx, my, mz, log_scales, quats, view, cam, S)
             R, scale, cov_cam, jac, basis, g_basis = S.R, S.scale, S.cov_cam, S.jac, S.basis, S.g_basis
-            g_basis[:] = F0
+            for k in range(16):
+                g_basis[k] = F0
             gpx = F0
             gpy = F0
             gpz = g_depths[i]

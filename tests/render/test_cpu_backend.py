@@ -349,6 +349,9 @@ def test_bench_render_prints_one_json_line(capsys: pytest.CaptureFixture[str]) -
         assert t["fwd_ms"] > 0 and t["fwd_bwd_ms"] > 0 and result["ratios"][name]["fwd_bwd"] > 0
     assert (result["n"], result["width"], result["height"]) == (200, 40, 30)
     assert set(result["numba_compile_s"]) == {"cold", "cached"}
+    stages = result["stages"]  # the other stages of a cpu render, each against what it replaces
+    assert set(stages["prepare"]) == {"autograd_ms", "fused_ms"} and set(stages["ssim_loss"]) == {"conv2d_ms", "numba_ms"}
+    assert all(t > 0 for stage in stages.values() for t in stage.values())
 
 
 def test_editing_an_input_before_backward_raises() -> None:
