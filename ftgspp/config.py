@@ -121,7 +121,8 @@ class TrainConfig:
     budget: int = 500_000  # number of Gaussians (fixed by relocation)
     backend: str = "auto"  # auto | reference | cpu | gsplat
     device: str = "auto"  # auto | cpu | cuda
-    threads: int = 0  # torch threads; 0 = leave as is
+    threads: int = 0  # torch threads; 0 = leave as is (portable mode: 1)
+    determinism: str = "default"  # default | portable (same bits on any x86-64; ftgspp/determinism.py)
     ssim_weight: float = 0.2
     lpips_weight: float = 0.0  # 0.01 on GPU profiles
     opacity_reg: float = 0.01  # FreeTimeGS 4D regulariser

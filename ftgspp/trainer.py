@@ -29,6 +29,7 @@ from tqdm import tqdm
 from ftgspp.color import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
+from ftgspp.determinism import apply_runtime, determinism_domain
 from ftgspp.errors import InputError
 from ftgspp.evaluate import evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
@@ -112,8 +113,13 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "config.json").write_text(json.dumps(asdict(cfg), indent=2))
-    if cfg.threads > 0:
-        torch.set_num_threads(cfg.threads)
+    try:
+        apply_runtime(cfg.determinism, cfg.threads)
+    except (RuntimeError, ValueError) as err:
+        raise InputError("determinism", str(err)) from None
+    domain = determinism_domain(cfg.determinism, cfg.threads)
+    (out_dir / "determinism.json").write_text(json.dumps(domain, indent=2))
+    tracker.set_tags({f"determinism.{k}": v for k, v in domain.items()})
     device = pick_device(cfg.device)
     torch.manual_seed(cfg.seed)
 

@@ -14,9 +14,8 @@ import hashlib
 import json
 from typing import Any
 
-import torch
-
 from ftgspp.config import TrainConfig
+from ftgspp.determinism import effective_threads
 
 # Keys that never change what a run computes: output location, logging cadence,
 # tracking destination, caches. The thread count is NOT one of them: CPU reductions sum in
@@ -50,13 +49,12 @@ def _flatten(prefix: str, value: Any, out: dict[str, str]) -> None:
 def flatten_config(cfg: TrainConfig) -> dict[str, str]:
     """Dotted keys of every option, values as strings (``lr.means -> '0.00016'``).
 
-    ``threads=0`` ("leave torch's default") is replaced by the count this process would
-    train with, ``torch.get_num_threads()``, so the params and the hash say what was used.
+    ``threads=0`` ("leave torch's default"; 1 in portable mode) is replaced by the count
+    this process would train with, so the params and the hash say what was used.
     """
     out: dict[str, str] = {}
     _flatten("", dataclasses.asdict(cfg), out)
-    if out.get("threads") == "0":
-        out["threads"] = str(torch.get_num_threads())
+    out["threads"] = str(effective_threads(cfg.determinism, cfg.threads))
     return out
 
 

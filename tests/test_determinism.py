@@ -1,0 +1,103 @@
+"""Portable determinism: the same config gives the same bits under environments that mimic
+other x86-64 machines; the default mode is shown to depend on them (so the test can fail).
+
+Each run is a fresh ``ftgspp train`` process (the environment is read when torch, NumPy,
+OpenCV and oneDNN load), smoke profile on the tiny scene, diagnostics off.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from ftgspp.determinism import determinism_domain, isa_class, portable_environment, requested_mode
+
+# Outer environments that mimic other machines: torch kernel dispatch, oneDNN ISA caps, no
+# AVX-512/AVX2 in NumPy and OpenCV, thread counts.
+MACHINES = {
+    "native": {},
+    "avx2": {"ATEN_CPU_CAPABILITY": "avx2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
+    "baseline": {"ATEN_CPU_CAPABILITY": "default"},
+    "no_avx512": {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL", "OPENCV_CPU_DISABLE": "AVX512-SKX",
+                  "ATEN_CPU_CAPABILITY": "avx2"},
+    "one_thread": {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"},
+}
+TIMING = {"train_seconds", "iters_per_second", "peak_rss_mb"}
+
+
+def train_in(env_extra: dict[str, str], mode: str, scene: Path, out: Path) -> tuple[dict, dict, dict]:
+    env = {k: v for k, v in os.environ.items() if k not in {"FTGSPP_DETERMINISM"}}
+    env.update(env_extra)
+    r = subprocess.run([sys.executable, "-m", "harness.ftgspp_cmd", "train", "profile=smoke", f"data.path={scene}",
+                        "progress=false", "init.keyframe_stride=3", "diagnostics=false", f"determinism={mode}",
+                        f"hydra.run.dir={out}"], env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    params = torch.load(out / "gaussians.pt", weights_only=True)
+    metrics = {k: v for k, v in json.loads((out / "metrics.json").read_text()).items() if k not in TIMING}
+    return params, metrics, json.loads((out / "determinism.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def runs(tiny_scene_dir: Path, tmp_path_factory) -> dict[tuple[str, str], tuple[dict, dict, dict]]:
+    root = tmp_path_factory.mktemp("determinism")
+    out = {}
+    for name, extra in MACHINES.items():
+        out["portable", name] = train_in(extra, "portable", tiny_scene_dir, root / f"portable_{name}")
+    for name in ("native", "baseline"):
+        out["default", name] = train_in(MACHINES[name], "default", tiny_scene_dir, root / f"default_{name}")
+    return out
+
+
+def same_bits(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_portable_mode_gives_identical_parameters_and_metrics_on_every_machine(runs):
+    params, metrics, domain = runs["portable", "native"]
+    for name in MACHINES:
+        p, m, d = runs["portable", name]
+        assert same_bits(p, params), name
+        assert m == metrics, name
+        assert d["id"] == domain["id"] and d["torch_cpu_capability"] == "DEFAULT" and d["mode"] == "portable"
+
+
+def test_default_mode_depends_on_the_kernel_dispatch(runs):
+    native, baseline = runs["default", "native"], runs["default", "baseline"]
+    assert not same_bits(native[0], baseline[0]), "torch's kernel dispatch changes the bits in default mode"
+    assert native[2]["id"] != baseline[2]["id"], "and the recorded domain says so"
+    assert native[2]["mode"] == "default"
+
+
+def test_portable_environment_pins_every_dispatching_library():
+    env = portable_environment({"ATEN_CPU_CAPABILITY": "avx512", "PATH": "/bin"})
+    assert env["ATEN_CPU_CAPABILITY"] == "default" and env["MKL_CBWR"] == "COMPATIBLE"
+    assert env["FTGSPP_DETERMINISM"] == "portable" and env["PATH"] == "/bin"
+    assert "X86_V4" in env["NPY_DISABLE_CPU_FEATURES"] and "AVX2" in env["OPENCV_CPU_DISABLE"]
+
+
+def test_domain_records_what_the_bits_depend_on():
+    d = determinism_domain("default")
+    for key in ("cpu_model", "isa_class", "torch_cpu_capability", "onednn", "mkl_cbwr", "torch_threads",
+                "numba_threads", "versions", "id"):
+        assert d[key], key
+    assert "torch 2.13.0" in d["versions"] and "numba" in d["versions"] and "opencv" in d["versions"]
+    assert isa_class({"avx512f", "avx512bw", "avx512cd", "avx512dq", "avx512vl", "avx2", "fma"}) == "x86-64-v4"
+    assert isa_class({"avx2", "fma", "bmi2", "movbe", "sse4_2"}) == "x86-64-v3"
+    assert requested_mode(["profile=smoke", "determinism=portable"]) == "portable"
+    assert requested_mode(["profile=smoke"]) is None
+
+
+def test_portable_mode_refuses_to_run_without_its_environment(tiny_scene_dir, tiny_scene, tmp_path):
+    from test_trainer import small_cfg
+
+    from ftgspp.errors import InputError
+    from ftgspp.trainer import train
+
+    with pytest.raises(InputError, match="determinism"):
+        train(small_cfg(tiny_scene_dir, tmp_path, determinism="portable"), tiny_scene)
