@@ -119,7 +119,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     failed = int(df.status.isin(["FAILED", "KILLED"]).sum())
     running = _print_running(data.uri, data.experiment, args.name)
     print(f"total: {done} done, {failed} failed, {len(df) - done - failed} missing"
-          + (f" (of which {running} running)" if running else ""))
+          + (f"; {running} running now (listed above)" if running else ""))
     return 0
 
 

@@ -113,3 +113,42 @@ def test_lease_length_comes_from_the_option_or_the_environment(monkeypatch: pyte
     with pytest.raises(ValueError):
         lease.lease_seconds(0)
 
+
+
+def test_status_lists_running_claims_with_host_and_age(workdir: Path, fakes_on: None, store: Store, exp: str,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    from harness.cli import main
+
+    assert main(["run", "toy", "--variants", "baseline", "--seeds", "1"]) == 0
+    other = {**KEY, "seed": "1", "config_hash": "feed01"}
+    store.create_run(exp, "baseline/easy/seed1", {**other, lease.OWNER: "node7:4242", lease.SECONDS: "300",
+                                                  lease.HEARTBEAT: str(time.time() - 12)})
+    store.create_run(exp, "cc/easy/seed1", {**other, "variant": "cc", lease.OWNER: "node8:1",
+                                            lease.SECONDS: "300", lease.HEARTBEAT: str(time.time() - 900)})
+    capsys.readouterr()
+    assert main(["status", "toy", "--variants", "baseline", "--seeds", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "running: baseline/easy/seed1 on node7:4242" in out and "(live)" in out
+    assert "running: cc/easy/seed1 on node8:1" in out and "stale: the next `study run` takes it over" in out
+    assert "total: 1 done, 0 failed, 0 missing" in out
+
+
+def test_a_worker_whose_run_was_taken_over_does_not_finish_it(workdir: Path) -> None:
+    """A worker silent past its lease (suspended, partitioned) finds its run FAILED by a taker:
+    it must not flip it to FINISHED, or the key would end FINISHED twice."""
+    from conftest import TOY_STUDIES
+    from fakes import fake_generate, fake_train
+
+    from harness.runner import run_study
+    from harness.studies import Selection
+
+    def taken_over_midway(cfg, out_dir, tracker):
+        tracker.store.terminate(tracker.run_id, "FAILED", {"failure": "interrupted", "error": "lease expired"})
+        return fake_train(cfg, out_dir, tracker)
+
+    out = run_study("toy", Selection(variants=["baseline"], seeds=1), studies_dir=TOY_STUDIES,
+                    train_fn=taken_over_midway, generate=fake_generate, echo=lambda s: None)
+    assert (out.finished, out.failed) == (0, 1) and out.results[0]["status"] == "LOST"
+    store = Store(f"sqlite:///{Path('mlflow.db').resolve()}")
+    (rec,) = [r for r in store.search(store.experiment_id("ftgspp/toy"), "tags.kind = 'run'")]
+    assert rec.info.status == "FAILED" and rec.data.tags["failure"] == "interrupted"
