@@ -295,11 +295,11 @@ def prepare_forward(
     means_t = np.empty((n, 3), np.float32)
     for blk in prange((n + BLOCK - 1) // BLOCK):
         S = _scratch()
+        basis = S.basis
         for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
             n_dim = sh0.shape[2]
             width = cam[CAM_W]
             height = cam[CAM_H]
-            basis = S.basis
             dt, s, a, gv, phi = _temporal(i, t, times, durations, gate_logits, max_duration, gate_on, gate_gamma)
             phis[i] = phi
             opac[i] = _sigmoid(opacity_logits[i]) * phi
@@ -392,6 +392,8 @@ def prepare_backward(
     gr_shN = np.zeros(shN.shape, np.float32)
     for blk in prange((n + BLOCK - 1) // BLOCK):
         S = _scratch()
+        R, scale, cov_cam, jac, basis, g_basis = S.R, S.scale, S.cov_cam, S.jac, S.basis, S.g_basis
+        gj, g_cam, gJ, tmp, g3, gR = S.gj, S.g_cam, S.gJ, S.tmp, S.g3, S.gR
         for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
             n_dim = sh0.shape[2]
             n_bases = (sh_degree + 1) * (sh_degree + 1)
@@ -407,7 +409,6 @@ def prepare_backward(
 
             # --- projection. Camera-space cotangent g_p, starting with the depth output.
             px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn = _geometry(i, mx, my, mz, log_scales, quats, view, cam, S)
-            R, scale, cov_cam, jac, basis, g_basis = S.R, S.scale, S.cov_cam, S.jac, S.basis, S.g_basis
             for k in range(16):
                 g_basis[k] = F0
             gpx = F0
@@ -424,15 +425,12 @@ def prepare_backward(
                 # cov2d = J C J^T with a = cov00 + eps, b = (cov01 + cov10) / 2, c = cov11 + eps:
                 # G = [[ga, gb/2], [gb/2, gc]], dL/dC = J^T G J, dL/dJ = 2 G J C.
                 g00, g01, g11 = ga, F_HALF * gb, gc
-                gj = S.gj  # G J
                 for c in range(3):
                     gj[0, c] = g00 * jac[0, c] + g01 * jac[1, c]
                     gj[1, c] = g01 * jac[0, c] + g11 * jac[1, c]
-                g_cam = S.g_cam  # J^T (G J)
                 for r in range(3):
                     for c in range(3):
                         g_cam[r, c] = jac[0, r] * gj[0, c] + jac[1, r] * gj[1, c]
-                gJ = S.gJ  # 2 (G J) C
                 for r in range(2):
                     for c in range(3):
                         gJ[r, c] = F2 * (gj[r, 0] * cov_cam[0, c] + gj[r, 1] * cov_cam[1, c] + gj[r, 2] * cov_cam[2, c])
@@ -450,11 +448,9 @@ def prepare_backward(
                 gpy += gv_ * iz
                 gpz += -(gu * u + gv_ * v) * iz
                 # cov_cam = W cov3 W^T  ->  dL/dcov3 = W^T g_cam W
-                tmp, g3 = S.tmp, S.g3
                 _mul3(view, g_cam, tmp, True, False)
                 _mul3(tmp, view, g3, False, False)
                 # cov3 = M M^T, M = R S  ->  dL/dM = (g3 + g3^T) M; dR_rk = dM_rk s_k; ds_k = sum_r dM_rk R_rk
-                gR = S.gR
                 for k in range(3):
                     gs = F0
                     for r in range(3):
