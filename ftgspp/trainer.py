@@ -30,6 +30,7 @@ from ftgspp.color import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
 from ftgspp.determinism import apply_runtime, determinism_domain
+from ftgspp.dispatch_run import check_dispatch, child_main, in_dispatch_child, train_in_child
 from ftgspp.errors import InputError
 from ftgspp.evaluate import evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
@@ -110,6 +111,9 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     Bad input (unknown policy, unavailable feature, bad scene) raises ``InputError``.
     """
     tracker = tracker or NullTracker()
+    check_dispatch(cfg)
+    if not in_dispatch_child(cfg):  # another CPU's kernel dispatch: train in a fresh process
+        return train_in_child(cfg, tracker)
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "config.json").write_text(json.dumps(asdict(cfg), indent=2))
@@ -255,3 +259,9 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
     bar.close()
     st.elapsed = time.perf_counter() - t0
     st.save(out_dir / CHECKPOINT)
+
+
+if __name__ == "__main__":  # a child started by ftgspp.dispatch_run.train_in_child
+    import sys
+
+    raise SystemExit(child_main(Path(sys.argv[1]), train))

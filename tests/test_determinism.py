@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from test_trainer import params
 
 from ftgspp.determinism import determinism_domain, isa_class, portable_environment, requested_mode
 
@@ -101,3 +102,46 @@ def test_portable_mode_refuses_to_run_without_its_environment(tiny_scene_dir, ti
 
     with pytest.raises(InputError, match="determinism"):
         train(small_cfg(tiny_scene_dir, tmp_path, determinism="portable"), tiny_scene)
+
+
+def test_a_dispatch_run_trains_in_a_child_with_that_kernel_set(tiny_scene_dir, tiny_scene, tmp_path):
+    """dispatch=baseline: the child runs torch's baseline kernels; the parent gets its metrics,
+    loss curve, artifacts and determinism domain, and the bits differ from the native run."""
+    from test_trainer import small_cfg
+    from test_trainer_parts import Recorder
+
+    from ftgspp.trainer import train
+
+    native = train(small_cfg(tiny_scene_dir, tmp_path / "native", diagnostics=False), tiny_scene)
+
+    class Tags(Recorder):
+        def __init__(self) -> None:
+            super().__init__()
+            self.tags: dict = {}
+            self.artifacts: list = []
+
+        def set_tags(self, tags):
+            self.tags.update(tags)
+
+        def log_artifact(self, path, artifact_path=None):
+            self.artifacts.append((path, artifact_path))
+
+    rec = Tags()
+    other = train(small_cfg(tiny_scene_dir, tmp_path / "baseline", diagnostics=False, dispatch="baseline"),
+                  tiny_scene, rec)
+    assert other.status == "FINISHED" and rec.tags["determinism.torch_cpu_capability"] == "DEFAULT"
+    assert any("loss" in m for _, m in rec.metrics) and any(where == "renders" for _, where in rec.artifacts)
+    a, b = params(tmp_path / "native"), params(tmp_path / "baseline")
+    assert not same_bits(a, b) and abs(other.metrics["psnr"] - native.metrics["psnr"]) < 0.5
+
+
+@pytest.mark.parametrize("over, key", [({"dispatch": "sse9"}, "dispatch"),
+                                       ({"dispatch": "avx2", "determinism": "portable"}, "dispatch")])
+def test_bad_dispatch_is_one_line(over, key, tiny_scene_dir, tiny_scene, tmp_path):
+    from test_trainer import small_cfg
+
+    from ftgspp.errors import InputError
+    from ftgspp.trainer import train
+
+    with pytest.raises(InputError, match=key):
+        train(small_cfg(tiny_scene_dir, tmp_path, **over), tiny_scene)

@@ -1,0 +1,105 @@
+"""One training run in a fresh process that dispatches torch's CPU kernels differently.
+
+The hardware share of run-to-run variance (secret 5) is measured by training the same
+config, seed and initialisation as if on another CPU: ``TrainConfig.dispatch`` names the
+torch kernel set (``avx512``, ``avx2``, ``baseline``; ``native`` = this machine's best).
+torch reads it at start-up (``ATEN_CPU_CAPABILITY``), so such a run trains in a child
+process started with that environment, and the parent collects its metrics, loss curve
+and determinism domain for the tracker.
+
+    python -m ftgspp.trainer OUT_DIR/dispatch_config.json   # what the parent starts (child_main)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from typing import Callable
+
+from ftgspp.config import TrainConfig, train_config_from_dict
+from ftgspp.errors import InputError
+from ftgspp.tracking import RunResult, Tracker
+
+DISPATCHES = {"native": None, "avx512": "avx512", "avx2": "avx2", "baseline": "default"}
+CHILD = "FTGSPP_DISPATCH"  # set in the child to the dispatch it was started for
+
+
+def in_dispatch_child(cfg: TrainConfig) -> bool:
+    """True when this process already runs with ``cfg.dispatch`` (or none is asked for)."""
+    return cfg.dispatch == "native" or os.environ.get(CHILD) == cfg.dispatch
+
+
+def check_dispatch(cfg: TrainConfig) -> None:
+    """One-line ``InputError`` for an unknown dispatch or one combined with portable mode."""
+    if cfg.dispatch not in DISPATCHES:
+        raise InputError("dispatch", f"unknown value '{cfg.dispatch}' (choose from {', '.join(DISPATCHES)})")
+    if cfg.dispatch != "native" and cfg.determinism == "portable":
+        raise InputError("dispatch", "portable mode pins the kernel dispatch; use dispatch=native with it")
+
+
+def train_in_child(cfg: TrainConfig, tracker: Tracker) -> RunResult:
+    """Train ``cfg`` in a child process under its dispatch; log what it wrote to ``tracker``."""
+    out_dir = Path(cfg.out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    config_file = out_dir / "dispatch_config.json"
+    config_file.write_text(json.dumps({"config": asdict(cfg)}, indent=2))
+    env = dict(os.environ)
+    env[CHILD] = cfg.dispatch
+    env["ATEN_CPU_CAPABILITY"] = DISPATCHES[cfg.dispatch]
+    proc = subprocess.run([sys.executable, "-m", "ftgspp.trainer", str(config_file)], env=env,
+                          capture_output=True, text=True)
+    (out_dir / "dispatch_child.log").write_text(proc.stdout + proc.stderr)
+    result_file = out_dir / "dispatch_result.json"
+    if proc.returncode != 0 or not result_file.exists():
+        last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"training under dispatch={cfg.dispatch} failed in its child process: {last}")
+    blob = json.loads(result_file.read_text())
+    for step, values in blob["curve"]:
+        tracker.log_metrics(values, step=step)
+    tracker.set_tags({f"determinism.{k}": v for k, v in blob["domain"].items()})
+    tracker.log_metrics({k: v for k, v in blob["metrics"].items() if v is not None})
+    for path, artifact_path in blob["artifacts"]:
+        tracker.log_artifact(Path(path), artifact_path)
+    return RunResult(status=blob["status"], metrics=blob["metrics"], failure=blob["failure"], out_dir=out_dir,
+                     artifacts=[Path(p) for p, where in blob["artifacts"] if where == "renders"])
+
+
+class _Recorder:
+    """The child's tracker: keeps the per-step curve and the artifacts for the parent."""
+
+    def __init__(self) -> None:
+        self.curve: list[tuple[int | None, dict]] = []
+        self.artifacts: list[tuple[str, str | None]] = []
+
+    def log_params(self, params):
+        pass
+
+    def log_metrics(self, metrics, step=None):
+        if step is not None:
+            self.curve.append((step, dict(metrics)))
+
+    def log_artifact(self, path, artifact_path=None):
+        self.artifacts.append((str(path), artifact_path))
+
+    def set_tags(self, tags):
+        pass
+
+
+def child_main(config_file: Path, train: Callable[..., RunResult]) -> int:
+    """The child: train the saved config with ``train`` and write what the parent collects."""
+    from ftgspp.data.load import load_scene
+
+    blob = json.loads(config_file.read_text())
+    cfg = train_config_from_dict(blob["config"])
+    recorder = _Recorder()
+    result = train(cfg, load_scene(cfg.data), recorder)
+    domain = json.loads((Path(cfg.out_dir) / "determinism.json").read_text())
+    (Path(cfg.out_dir) / "dispatch_result.json").write_text(json.dumps({
+        "status": result.status, "failure": result.failure, "metrics": result.metrics, "curve": recorder.curve,
+        "domain": domain, "artifacts": recorder.artifacts}))
+    return 0
+
