@@ -7,6 +7,10 @@ how they composite the projected 2D Gaussians:
 - ``cpu``: compiled Numba kernels with a hand-written backward (fast on CPU).
 - ``gsplat``: ``gsplat.rasterization`` on CUDA (optional extra).
 
+For a ``FreeTimeGaussians`` model, ``view.render_view`` on the ``cpu`` backend replaces
+time evaluation, SH colour and this projection by one fused Numba node (``prepare.py``,
+same numbers to float32 rounding) before the ``cpu`` rasterizer.
+
 ``backend="auto"`` picks gsplat on CUDA tensors and cpu otherwise (falling back to the
 reference when a backend is not installed).
 
