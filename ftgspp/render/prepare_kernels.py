@@ -87,26 +87,26 @@ def _sigmoid(x):
     return F1 / (F1 + math.exp(-x))
 
 
-@njit(inline="always", **_JIT)
-def _temporal(i, t, times, durations, gate_logits, max_duration, gate_on, gate_gamma):
-    """(dt, s, a, gate value, phi) of Gaussian i at time t (float32)."""
-    d = durations[i]
+@njit(**_JIT)
+def _temporal(t, mu_t, d, gate_logit, max_duration, gate_on, gate_gamma):
+    """(dt, s, a, gate value, phi) at time t of a Gaussian with centre mu_t, duration
+    parameter d and gate logit (float32 scalars, so that calls carry no arrays)."""
     if max_duration > F0:
         s = max_duration * _sigmoid(d)  # max_duration holds max_duration / 6
     else:
         s = np.float32(math.exp(d))
-    dt = t - times[i]
+    dt = t - mu_t
     r = dt / s
     a = np.float32(math.exp(np.float32(-F_HALF) * (r * r)))
     gv = F0
     phi = a
     if gate_on:
-        gv = _sigmoid(gate_gamma * gate_logits[i])
+        gv = _sigmoid(gate_gamma * gate_logit)
         phi = gv + (F1 - gv) * a
     return dt, s, a, gv, phi
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _basis(degree, x, y, z, out):
     """Real SH basis (sh.py's order and constants) at the unit direction (x, y, z) into out."""
     out[0] = SC0
@@ -132,7 +132,7 @@ def _basis(degree, x, y, z, out):
         out[15] = SC3[6] * x * (xx - F3 * yy)
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _basis_grad(degree, x, y, z, gb):
     """Gradient of sum_k gb[k] Y_k(x, y, z) with respect to (x, y, z)."""
     gx = F0
@@ -184,7 +184,7 @@ def _normalise_grad(ux, uy, uz, n, eps, gx, gy, gz):
     return gx / n, gy / n, gz / n
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _rotation(qw, qx, qy, qz, R):
     """Rotation matrix of the normalised quaternion (project.py's formula) into R [3, 3]."""
     R[0, 0] = F1 - F2 * (qy * qy + qz * qz)
@@ -300,7 +300,9 @@ def prepare_forward(
             n_dim = sh0.shape[2]
             width = cam[CAM_W]
             height = cam[CAM_H]
-            dt, s, a, gv, phi = _temporal(i, t, times, durations, gate_logits, max_duration, gate_on, gate_gamma)
+            dt, s, a, gv, phi = _temporal(
+                t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
+            )
             phis[i] = phi
             opac[i] = _sigmoid(opacity_logits[i]) * phi
             mx = means[i, 0] + velocities[i, 0] * dt
@@ -399,7 +401,9 @@ def prepare_backward(
             n_bases = (sh_degree + 1) * (sh_degree + 1)
             fx = cam[CAM_FX]
             fy = cam[CAM_FY]
-            dt, s, a, gv, phi = _temporal(i, t, times, durations, gate_logits, max_duration, gate_on, gate_gamma)
+            dt, s, a, gv, phi = _temporal(
+                t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
+            )
             mx = means[i, 0] + velocities[i, 0] * dt
             my = means[i, 1] + velocities[i, 1] * dt
             mz = means[i, 2] + velocities[i, 2] * dt
