@@ -24,8 +24,8 @@ import torch
 from torch import Tensor
 
 from ftgspp.render import EPS2D
-from ftgspp.render.cpu import f32_array as _np  # (importing cpu chooses the Numba threading layer first)
-from ftgspp.render import prepare_kernels as _pk  # noqa: E402
+from ftgspp.render.cpu import f32_array  # imported first: it chooses the Numba threading layer
+from ftgspp.render import prepare_kernels as _pk  # noqa: I001
 
 # Model parameters the kernel reads, in kernel argument order.
 PARAM_NAMES = ("means", "velocities", "times", "durations", "scales", "quats", "opacities", "gates", "sh0", "shN")
@@ -66,8 +66,8 @@ class _PrepareCPU(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, settings, viewmat, centre, cam, *params):
-        arrays = [_np(p) for p in params]
-        view, ctr = _np(viewmat), _np(centre)
+        arrays = [f32_array(p) for p in params]
+        view, ctr = f32_array(viewmat), f32_array(centre)
         outs = _pk.prepare_forward(settings[0], *arrays, view, ctr, cam, *settings[1:])
         means2d, conics, colors, opac, depths, radii, phi, means_t = (torch.from_numpy(a) for a in outs)
         ctx.settings, ctx.view, ctx.centre, ctx.cam = settings, view, ctr, cam
@@ -83,10 +83,10 @@ class _PrepareCPU(torch.autograd.Function):
         n, n_dim = params[0].shape[0], params[8].shape[2]
 
         def cot(g: Tensor | None, shape: tuple[int, ...]) -> np.ndarray:
-            return np.zeros(shape, np.float32) if g is None else _np(g).reshape(shape)
+            return np.zeros(shape, np.float32) if g is None else f32_array(g).reshape(shape)
 
         grads = _pk.prepare_backward(
-            ctx.settings[0], *[_np(p) for p in params], ctx.view, ctx.centre, ctx.cam, *ctx.settings[1:],
+            ctx.settings[0], *[f32_array(p) for p in params], ctx.view, ctx.centre, ctx.cam, *ctx.settings[1:],
             radii.numpy(), cot(g_m2d, (n, 2)), cot(g_con, (n, 3)), cot(g_col, (n, n_dim)), cot(g_op, (n,)),
             cot(g_z, (n,)), cot(g_phi, (n,)), cot(g_mt, (n, 3)),
         )  # fmt: skip
