@@ -130,17 +130,9 @@ class _RasterizeCPU(torch.autograd.Function):
             cotangent(grad_image, (height, width, n_dim)), cotangent(grad_alpha, (height, width)),
             cotangent(grad_depth, (height, width)),
         )  # fmt: skip
-        grads, grad_bg = _k.reduce_pair_grads(pair_grads, binning.gauss_off, fwd.gauss_pairs, bg_grads)
-        g = torch.from_numpy(grads)  # [N, 7 + D] float64, columns G_*
-        parts = (
-            g[:, _k.G_MX : _k.G_MY + 1],  # means2d
-            g[:, _k.G_A : _k.G_C + 1],  # conics
-            g[:, _k.G_COL :],  # colors
-            g[:, _k.G_O],  # opacities
-            g[:, _k.G_Z],  # depths
-            torch.from_numpy(grad_bg),  # background
-        )
-        out = [p.to(device=ctx.device, dtype=dt) for p, dt in zip(parts, ctx.in_dtypes)]
+        parts = _k.reduce_pair_grads(pair_grads, binning.gauss_off, fwd.gauss_pairs, bg_grads)
+        # means2d, conics, colors, opacities, depths (float32), background (float64)
+        out = [torch.from_numpy(p).to(device=ctx.device, dtype=dt) for p, dt in zip(parts, ctx.in_dtypes)]
         return (*out, None, None, None)
 
 

@@ -604,18 +604,38 @@ def render_backward(
 def reduce_pair_grads(pair_grads: np.ndarray, gauss_off: np.ndarray, gauss_pairs: np.ndarray, bg_grads: np.ndarray):
     """Sum each Gaussian's gradient rows in the raster order of its tiles (deterministic).
 
-    Returns ``grads [N, 7 + D] float64`` and ``grad_background [D] float64``.
+    Sums are float64, stored rounded to float32 per rasterizer input: returns the gradients
+    of ``means2d [N, 2]``, ``conics [N, 3]``, ``colors [N, D]``, ``opacities [N]``,
+    ``depths [N]`` (float32) and ``background [D]`` (float64).
     """
     n = gauss_off.shape[0] - 1
     n_cols = pair_grads.shape[1]
-    grads = np.zeros((n, n_cols), np.float64)
-    for k in prange(n):
-        for q in range(gauss_off[k], gauss_off[k + 1]):
-            pair = gauss_pairs[q]
-            for j in range(n_cols):
-                grads[k, j] += pair_grads[pair, j]
+    n_dim = n_cols - G_COL
+    g_m2d = np.empty((n, 2), np.float32)
+    g_con = np.empty((n, 3), np.float32)
+    g_col = np.empty((n, n_dim), np.float32)
+    g_op = np.empty(n, np.float32)
+    g_z = np.empty(n, np.float32)
+    block = 256
+    for b in prange((n + block - 1) // block):
+        acc = np.empty(n_cols, np.float64)
+        for k in range(b * block, min(n, (b + 1) * block)):
+            acc[:] = 0.0
+            for q in range(gauss_off[k], gauss_off[k + 1]):
+                pair = gauss_pairs[q]
+                for j in range(n_cols):
+                    acc[j] += pair_grads[pair, j]
+            g_m2d[k, 0] = acc[G_MX]
+            g_m2d[k, 1] = acc[G_MY]
+            g_con[k, 0] = acc[G_A]
+            g_con[k, 1] = acc[G_B]
+            g_con[k, 2] = acc[G_C]
+            g_op[k] = acc[G_O]
+            g_z[k] = acc[G_Z]
+            for ch in range(n_dim):
+                g_col[k, ch] = acc[G_COL + ch]
     grad_bg = np.zeros(bg_grads.shape[1], np.float64)
     for t in range(bg_grads.shape[0]):
         for ch in range(bg_grads.shape[1]):
             grad_bg[ch] += bg_grads[t, ch]
-    return grads, grad_bg
+    return g_m2d, g_con, g_col, g_op, g_z, grad_bg
