@@ -18,8 +18,9 @@ Two modes (``TrainConfig.determinism``):
   a fixed order whatever the thread count.
 
 Environment variables are read when the libraries load, so the portable environment must
-exist before Python imports torch: ``ftgspp train`` and ``study run`` re-execute
-themselves with it (``reexec_if_needed``); ``train()`` refuses to run portable without it.
+exist before Python imports torch: ``ftgspp train determinism=portable`` re-executes itself
+with it (``reexec_if_needed``), and ``train()`` called in a process without it trains in a
+child process that has it (``ftgspp.dispatch_run``).
 
     env = portable_environment(os.environ)      # for a subprocess
     domain = determinism_domain("portable")      # what to record with a run

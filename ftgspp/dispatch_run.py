@@ -1,11 +1,15 @@
-"""One training run in a fresh process that dispatches torch's CPU kernels differently.
+"""One training run in a fresh process when this process's environment is not the run's.
 
-The hardware share of run-to-run variance (secret 5) is measured by training the same
-config, seed and initialisation as if on another CPU: ``TrainConfig.dispatch`` names the
-torch kernel set (``avx512``, ``avx2``, ``baseline``; ``native`` = this machine's best).
-torch reads it at start-up (``ATEN_CPU_CAPABILITY``), so such a run trains in a child
-process started with that environment, and the parent collects its metrics, loss curve
-and determinism domain for the tracker.
+Kernel dispatch is fixed when the libraries load, so a run whose determinism settings
+differ from this process's trains in a child process started with the right environment,
+and the parent collects its metrics, loss curve, artifacts and determinism domain:
+
+- ``determinism=portable`` from a process without the portable environment (e.g. a
+  ``study run`` mixing modes, or ``train()`` called from Python);
+- ``determinism=default`` from a process that has it;
+- ``dispatch=avx512|avx2|baseline``: the same config, seed and initialisation trained as
+  if on another CPU (torch's kernel set, ``ATEN_CPU_CAPABILITY``), which measures the
+  hardware share of run-to-run variance (secret 5). ``native`` is this machine's best.
 
     python -m ftgspp.trainer OUT_DIR/dispatch_config.json   # what the parent starts (child_main)
 """
@@ -21,16 +25,37 @@ from pathlib import Path
 from typing import Callable
 
 from ftgspp.config import TrainConfig, train_config_from_dict
+from ftgspp.determinism import MARKER, PORTABLE_FIXED, portable_environment
 from ftgspp.errors import InputError
 from ftgspp.tracking import RunResult, Tracker
 
 DISPATCHES = {"native": None, "avx512": "avx512", "avx2": "avx2", "baseline": "default"}
-CHILD = "FTGSPP_DISPATCH"  # set in the child to the dispatch it was started for
+CHILD = "FTGSPP_RUN_CHILD"  # set in a child, so a mismatch there is an error, not another child
 
 
-def in_dispatch_child(cfg: TrainConfig) -> bool:
-    """True when this process already runs with ``cfg.dispatch`` (or none is asked for)."""
-    return cfg.dispatch == "native" or os.environ.get(CHILD) == cfg.dispatch
+def needs_child(cfg: TrainConfig) -> bool:
+    """Whether this process's environment differs from what ``cfg`` needs (see the module doc)."""
+    portable_here = os.environ.get(MARKER) == "portable"
+    if cfg.determinism == "portable":
+        return not portable_here
+    if portable_here:
+        return True
+    want = DISPATCHES[cfg.dispatch]
+    return want is not None and os.environ.get("ATEN_CPU_CAPABILITY") != want
+
+
+def child_environment(cfg: TrainConfig) -> dict[str, str]:
+    """This process's environment turned into the one ``cfg`` needs."""
+    env = dict(os.environ)
+    if cfg.determinism == "portable":
+        env = portable_environment(env)
+    else:  # back to this machine's own dispatch, then the requested kernel set
+        for key in (*PORTABLE_FIXED, "NPY_DISABLE_CPU_FEATURES", "OPENCV_CPU_DISABLE", MARKER):
+            env.pop(key, None)
+        if DISPATCHES[cfg.dispatch] is not None:
+            env["ATEN_CPU_CAPABILITY"] = DISPATCHES[cfg.dispatch]
+    env[CHILD] = "1"
+    return env
 
 
 def check_dispatch(cfg: TrainConfig) -> None:
@@ -42,21 +67,21 @@ def check_dispatch(cfg: TrainConfig) -> None:
 
 
 def train_in_child(cfg: TrainConfig, tracker: Tracker) -> RunResult:
-    """Train ``cfg`` in a child process under its dispatch; log what it wrote to ``tracker``."""
+    """Train ``cfg`` in a child process with the environment it needs; log what it wrote to ``tracker``."""
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     config_file = out_dir / "dispatch_config.json"
     config_file.write_text(json.dumps({"config": asdict(cfg)}, indent=2))
-    env = dict(os.environ)
-    env[CHILD] = cfg.dispatch
-    env["ATEN_CPU_CAPABILITY"] = DISPATCHES[cfg.dispatch]
-    proc = subprocess.run([sys.executable, "-m", "ftgspp.trainer", str(config_file)], env=env,
+    if os.environ.get(CHILD):
+        raise RuntimeError("a training child process did not get the environment its run needs")
+    proc = subprocess.run([sys.executable, "-m", "ftgspp.trainer", str(config_file)], env=child_environment(cfg),
                           capture_output=True, text=True)
     (out_dir / "dispatch_child.log").write_text(proc.stdout + proc.stderr)
     result_file = out_dir / "dispatch_result.json"
     if proc.returncode != 0 or not result_file.exists():
         last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
-        raise RuntimeError(f"training under dispatch={cfg.dispatch} failed in its child process: {last}")
+        raise RuntimeError(f"training (determinism={cfg.determinism}, dispatch={cfg.dispatch}) failed in its "
+                           f"child process: {last}")
     blob = json.loads(result_file.read_text())
     for step, values in blob["curve"]:
         tracker.log_metrics(values, step=step)

@@ -30,7 +30,7 @@ from ftgspp.color import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
 from ftgspp.determinism import apply_runtime, determinism_domain
-from ftgspp.dispatch_run import check_dispatch, child_main, in_dispatch_child, train_in_child
+from ftgspp.dispatch_run import check_dispatch, child_main, needs_child, train_in_child
 from ftgspp.errors import InputError
 from ftgspp.evaluate import evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
@@ -112,7 +112,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     """
     tracker = tracker or NullTracker()
     check_dispatch(cfg)
-    if not in_dispatch_child(cfg):  # another CPU's kernel dispatch: train in a fresh process
+    if needs_child(cfg):  # another determinism environment / kernel dispatch: train in a fresh process
         return train_in_child(cfg, tracker)
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -24,6 +24,10 @@ AVERAGE = "average"
 KEY_COLUMNS = ["variant", "scene", "seed", "config_hash"]
 LOWER_IS_BETTER = ("lpips*", "dssim*", "train_seconds", "peak_rss_mb", "n_gaussians", "motion_*", "loss*", "epe*")
 EXTRA_PARAMS = ("budget", "iterations", "lr.scale")
+# run tags that say which determinism domain a run's bits come from (ftgspp/determinism.py)
+DOMAIN_COLUMNS = {"domain": "determinism.id", "determinism": "determinism.mode",
+                  "cpu_capability": "determinism.torch_cpu_capability", "cpu_model": "determinism.cpu_model",
+                  "torch_threads": "determinism.torch_threads"}
 
 
 def lower_is_better(metric: str) -> bool:
@@ -54,6 +58,7 @@ def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]
             row.update(status="MISSING", failure="", error="", run_id="")
         else:
             row.update(status=rec.status, failure=rec.failure, error=rec.error, run_id=rec.run_id)
+            row.update({col: rec.tags.get(tag, "") for col, tag in DOMAIN_COLUMNS.items()})
             if rec.status == "FINISHED":
                 row.update(rec.metrics)
         rows.append(row)
@@ -62,7 +67,7 @@ def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]
 
 def metric_columns(df: pd.DataFrame) -> list[str]:
     """Columns that hold metrics (everything that is not a key, status or param column)."""
-    fixed = {*KEY_COLUMNS, "scene_label", "status", "failure", "error", "run_id", *EXTRA_PARAMS}
+    fixed = {*KEY_COLUMNS, "scene_label", "status", "failure", "error", "run_id", *EXTRA_PARAMS, *DOMAIN_COLUMNS}
     return [c for c in df.columns if c not in fixed]
 
 
@@ -222,3 +227,24 @@ def stability(df: pd.DataFrame, metric: str = "psnr") -> pd.DataFrame:
             "n_diverged": int((sub.failure == "diverged").sum()),
         })
     return pd.DataFrame(rows)
+
+
+def domains(df: pd.DataFrame) -> pd.DataFrame:
+    """The determinism domains of the finished runs: one row per domain with its runs and cells,
+    and ``mixed_cells``: (variant, scene) cells whose runs come from more than one domain."""
+    cols = ["domain", "mode", "cpu_capability", "cpu_model", "torch_threads", "runs", "variants"]
+    if "domain" not in df:
+        out = pd.DataFrame(columns=cols)
+        out.attrs["mixed_cells"] = []
+        return out
+    ok = df[(df.status == "FINISHED") & (df.domain.fillna("") != "")]
+    rows = []
+    for dom, g in ok.groupby("domain"):
+        first = g.iloc[0]
+        rows.append({"domain": dom, "mode": first.determinism, "cpu_capability": first.cpu_capability,
+                     "cpu_model": first.cpu_model, "torch_threads": first.torch_threads, "runs": len(g),
+                     "variants": ", ".join(sorted(g.variant.unique()))})
+    out = pd.DataFrame(rows, columns=cols)
+    per_cell = ok.groupby(["variant", "scene"]).domain.nunique() if len(ok) else pd.Series(dtype=int)
+    out.attrs["mixed_cells"] = [f"{v}/{s}" for (v, s), n in per_cell.items() if n > 1]
+    return out

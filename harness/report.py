@@ -30,7 +30,7 @@ from typing import Any, Callable
 
 import pandas as pd
 
-from harness import aggregate, claims, claims_report, plots, tables
+from harness import aggregate, claims, claims_report, plots, tables, variance
 from harness.plan import PlannedRun, plan_runs
 from harness.records import RunRecord, latest_invocation, load_runs, open_store, select
 from harness.runner import command_line, tracking_target
@@ -272,7 +272,7 @@ def fetch_diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, 
 
 
 def write_index(data: ReportData, out: Path, tabs: list[tables.Table], figures: list[tuple[str, Path]],
-                diags: list[tuple[str, str, int, list[Path]]], claims_md: str = "") -> None:
+                diags: list[tuple[str, str, int, list[Path]]], claims_md: str = "", variance_md: str = "") -> None:
     study, df = data.study, data.df
     prof = study.profile(data.sel.profile)
     c = aggregate.counts(df)
@@ -304,8 +304,11 @@ def write_index(data: ReportData, out: Path, tabs: list[tables.Table], figures: 
     ]
     if cmds:
         lines += ["Invocations that produced these runs:", "", *[f"- `{cmd}`" for cmd in cmds], ""]
+    lines += determinism_md(df)
     if claims_md:
         lines += ["## Claims", "", claims_md, ""]
+    if variance_md:
+        lines += ["## Sources of run-to-run spread", "", variance_md, ""]
     lines += ["## Tables", "",
               "Full tables, t-tests and failures: [table.md](table.md); LaTeX: [table.tex](table.tex);",
               "per-run data: [runs.csv](runs.csv), per-cell statistics: [summary.csv](summary.csv).", ""]
@@ -366,15 +369,52 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
     data.df.to_csv(out / "runs.csv", index=False)
     tabs, summaries = write_tables(data, out)
     claims_md = write_claims(data, out)
+    variance_md = write_variance(data, out)
     if summaries:
         pd.concat(summaries.values(), ignore_index=True).to_csv(out / "summary.csv", index=False)
     figures = write_plots(data, out)
     diags = fetch_diagnostics(data, out)
-    write_index(data, out, tabs, figures, diags, claims_md)
+    write_index(data, out, tabs, figures, diags, claims_md, variance_md)
     c = aggregate.counts(data.df)
     echo(f"{name}: report of {c['n_runs']} runs ({c['n_finished']} finished, {c['n_failed']} failed,"
          f" {c['n_missing'] + c['n_running']} missing) written to {out / 'index.md'}")
     return out / "index.md"
+
+
+def determinism_md(df: pd.DataFrame) -> list[str]:
+    """Which determinism domains the runs come from; a warning for cells that mix domains."""
+    doms = aggregate.domains(df)
+    if doms.empty:
+        return []
+    lines = ["## Determinism", ""]
+    if len(doms) == 1:
+        d = doms.iloc[0]
+        lines.append(f"All {d.runs} finished runs come from one determinism domain: `{d.domain}` ({d['mode']} mode,"
+                     f" torch kernels {d.cpu_capability}, {d.torch_threads} torch thread(s), {d.cpu_model}).")
+    else:
+        lines += [f"**Runs from {len(doms)} determinism domains.** Numbers of different domains need not agree"
+                  " bit for bit (ftgspp/determinism.py; portable-mode runs reproduce on any x86-64 machine with"
+                  " the same package versions).", "",
+                  "| domain | mode | torch kernels | threads | CPU | runs | variants |", "|---|---|---|---:|---|---:|---|"]
+        lines += [f"| `{d.domain}` | {d['mode']} | {d.cpu_capability} | {d.torch_threads} | {d.cpu_model} | {d.runs} |"
+                  f" {d.variants} |" for _, d in doms.iterrows()]
+    mixed = doms.attrs["mixed_cells"]
+    if mixed:
+        lines += ["", f"**Warning:** these cells mix runs of different domains: {', '.join(mixed)}."]
+    return lines + [""]
+
+
+def write_variance(data: ReportData, out: Path) -> str:
+    """The study's ``variance_components`` (optimisation, initialisation, hardware) as
+    ``variance.csv`` and Markdown; "" when the study names none."""
+    if data.study.variance is None:
+        return ""
+    frame = variance.components(data.df, data.study.variance)
+    frame.to_csv(out / "variance.csv", index=False)
+    md = variance.components_markdown(frame)
+    with (out / "table.md").open("a") as f:
+        f.write(f"\n## Sources of run-to-run spread\n\n{md}\n")
+    return md
 
 
 # --- claims: the study file's claims with verdicts (harness/claims.py) -------------------

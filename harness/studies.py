@@ -140,6 +140,7 @@ class StudySpec:
     notes: str = ""
     path: Path | None = None
     claims: tuple[ClaimSpec, ...] = ()
+    variance: "VarianceSpec | None" = None
 
     def profile(self, name: str) -> ProfileSpec:
         """The named profile, or an InputError listing the available ones."""
@@ -266,8 +267,8 @@ def _smoke_from_quick(quick: ProfileSpec, study: str) -> ProfileSpec:
         scenes.append(SceneSpec(s.name, synth, keep, s.label, (SYNTH_ROOT / f"{s.name}-smoke").as_posix()))
     return ProfileSpec(
         name="smoke",
-        seeds=1,
-        overrides=SMOKE_OVERRIDES,
+        seeds=1,  # the quick profile's own overrides (e.g. determinism=portable) carry over
+        overrides=(*SMOKE_OVERRIDES, *(o for o in quick.overrides if not o.startswith("profile="))),
         scenes=tuple(scenes),
         variants=quick.variants,
         expected_runtime="seconds per run (tests only)",
@@ -310,6 +311,7 @@ def parse_study(raw: Any, path: Path, sets: dict[str, Any] | None = None) -> Stu
     _require(isinstance(base_seed, int), f"{where}: base_seed", "must be an integer")
     all_variants = {v for p in profiles.values() for v in p.variants}
     claims = _parse_claims(raw.get("claims"), f"{where}: claims", all_variants)
+    variance = _parse_variance(raw.get("variance_components"), f"{where}: variance_components", all_variants)
     return StudySpec(
         name=raw["name"],
         question=" ".join(str(raw["question"]).split()),
@@ -323,7 +325,33 @@ def parse_study(raw: Any, path: Path, sets: dict[str, Any] | None = None) -> Stu
         notes=" ".join(str(raw.get("notes", "")).split()),
         path=path,
         claims=claims,
+        variance=variance,
     )
+
+
+@dataclass(frozen=True)
+class VarianceSpec:
+    """Which variants isolate each source of run-to-run spread (``harness.variance``)."""
+
+    metric: str
+    optimisation: str  # fixed initialisation, the seed varies the optimisation only
+    initialisation: str  # the initialisation is re-drawn per seed too
+    hardware: tuple[str, ...]  # same seed and initialisation, another CPU kernel dispatch each
+
+
+def _parse_variance(raw: Any, where: str, variants: set[str]) -> VarianceSpec | None:
+    """Validate ``variance_components:`` (variants: those of any profile)."""
+    if raw is None:
+        return None
+    _require(isinstance(raw, dict), where, "must be a mapping")
+    for key in ("metric", "optimisation", "initialisation", "hardware"):
+        _require(key in raw, where, f"missing key '{key}'")
+    hardware = _str_list(raw["hardware"], f"{where}.hardware")
+    _require(len(hardware) >= 2, f"{where}.hardware", "needs at least two dispatch variants")
+    for key, v in [("optimisation", raw["optimisation"]), ("initialisation", raw["initialisation"])] + \
+            [("hardware", h) for h in hardware]:
+        _require(v in variants, f"{where}.{key}", f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
+    return VarianceSpec(str(raw["metric"]), str(raw["optimisation"]), str(raw["initialisation"]), hardware)
 
 
 _CLAIM_KEYS = {"id", "claim", "paper_number", "metric", "test", "expect", "a", "b", "scenes", "pair", "versus",

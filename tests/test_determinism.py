@@ -23,10 +23,9 @@ from ftgspp.determinism import determinism_domain, isa_class, portable_environme
 # AVX-512/AVX2 in NumPy and OpenCV, thread counts.
 MACHINES = {
     "native": {},
-    "avx2": {"ATEN_CPU_CAPABILITY": "avx2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
     "baseline": {"ATEN_CPU_CAPABILITY": "default"},
     "no_avx512": {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL", "OPENCV_CPU_DISABLE": "AVX512-SKX",
-                  "ATEN_CPU_CAPABILITY": "avx2"},
+                  "ATEN_CPU_CAPABILITY": "avx2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
     "one_thread": {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"},
 }
 TIMING = {"train_seconds", "iters_per_second", "peak_rss_mb"}
@@ -94,14 +93,18 @@ def test_domain_records_what_the_bits_depend_on():
     assert requested_mode(["profile=smoke"]) is None
 
 
-def test_portable_mode_refuses_to_run_without_its_environment(tiny_scene_dir, tiny_scene, tmp_path):
+def test_a_portable_run_from_a_default_process_trains_in_a_pinned_child(tiny_scene_dir, tiny_scene, tmp_path,
+                                                                         monkeypatch):
     from test_trainer import small_cfg
 
-    from ftgspp.errors import InputError
     from ftgspp.trainer import train
 
-    with pytest.raises(InputError, match="determinism"):
-        train(small_cfg(tiny_scene_dir, tmp_path, determinism="portable"), tiny_scene)
+    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx2")  # this process's own setting must not leak in
+    result = train(small_cfg(tiny_scene_dir, tmp_path, determinism="portable", iterations=6, diagnostics=False),
+                   tiny_scene)
+    domain = json.loads((tmp_path / "determinism.json").read_text())
+    assert result.status == "FINISHED" and domain["mode"] == "portable"
+    assert domain["torch_cpu_capability"] == "DEFAULT" and domain["onednn"] == "off"
 
 
 def test_a_dispatch_run_trains_in_a_child_with_that_kernel_set(tiny_scene_dir, tiny_scene, tmp_path):
