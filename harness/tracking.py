@@ -238,9 +238,21 @@ class Store:
         """Soft-delete a run (searches no longer see it); used to withdraw a lease claim."""
         self.call(self.client.delete_run, run_id)
 
-    def log_inputs(self, run_id: str, datasets: list[Any]) -> None:
-        """Log MLflow ``DatasetInput`` entities."""
-        self.call(self.client.log_inputs, run_id, datasets=datasets)
+    def log_inputs(self, run_id: str, datasets: list[Any], attempts: int = 4) -> None:
+        """Log MLflow ``DatasetInput`` entities.
+
+        Runs of one scene starting at the same moment race to insert the same dataset row
+        (MLflow checks, then inserts: the loser gets an integrity error, over HTTP a 500);
+        a retry finds the row and links it.
+        """
+        for attempt in range(attempts):
+            try:
+                self.call(self.client.log_inputs, run_id, datasets=datasets)
+                return
+            except Exception:
+                if attempt == attempts - 1:
+                    raise
+                time.sleep(0.2 * (attempt + 1))
 
     def terminate(self, run_id: str, status: str, tags: dict[str, str] | None = None) -> None:
         """Set final tags and status (FINISHED, FAILED or KILLED)."""

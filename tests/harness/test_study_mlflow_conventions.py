@@ -57,3 +57,38 @@ def test_real_scene_dataset_is_fingerprinted_by_its_files(tmp_path: Path) -> Non
     assert inp.dataset.source_type == "local" and json.loads(inp.dataset.source)["uri"] == str(tmp_path.resolve())
     (tmp_path / "cam01.mp4").write_bytes(b"z")
     assert folder_fingerprint(tmp_path) != want
+
+
+def test_runs_of_one_scene_starting_together_all_get_the_dataset(workdir: Path) -> None:
+    """MLflow inserts a dataset row check-then-insert; simultaneous runs of one scene race
+    (behind a server there is no client-side lock to serialise them). All must get it."""
+    import threading
+
+    from harness.tracking import Store
+
+    uri = f"sqlite:///{Path('mlflow.db').resolve()}"
+    main = Store(uri)
+    exp = main.experiment_id("race")
+    run_ids = [main.create_run(exp, f"r{i}", {}) for i in range(6)]
+    dataset = scene_dataset("easy", "data/synth/easy", "dynerf", {"layout": "dynerf", "preset": "studio", "seed": 0})
+    gate = threading.Barrier(len(run_ids))
+    errors: list[BaseException] = []
+
+    def log(run_id: str) -> None:
+        store = Store(uri)
+        store._lock_path = None  # as over HTTP: the server does not serialise these writes
+        gate.wait()
+        try:
+            store.log_inputs(run_id, [dataset])
+        except BaseException as exc:  # collected: the assertion below names it
+            errors.append(exc)
+
+    threads = [threading.Thread(target=log, args=(r,)) for r in run_ids]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors[0]
+    for run_id in run_ids:
+        (inp,) = main.client.get_run(run_id).inputs.dataset_inputs
+        assert inp.dataset.digest == dataset.dataset.digest

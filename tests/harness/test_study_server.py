@@ -71,7 +71,7 @@ def test_parallel_study_logs_over_http(mlflow_server: str, workdir: Path, monkey
     monkeypatch.setenv("MLFLOW_TRACKING_URI", mlflow_server)
     out = run_study("toy", Selection(variants=["baseline", "wild"], seeds=2), jobs=2, studies_dir=TOY_STUDIES,
                     train_fn=fake_train, generate=fake_generate, echo=lambda s: None)
-    assert (out.launched, out.finished, out.diverged) == (4, 2, 2)
+    assert (out.launched, out.finished, out.diverged) == (4, 2, 2), out.results
     assert not Path("mlflow.db.lock").exists(), "no SQLite lock when logging over HTTP"
     store = open_store(mlflow_server)
     runs = load_runs(store, "ftgspp/toy", "toy")
