@@ -279,6 +279,29 @@ def pending(store: Store, experiment: str, study: str, planned: list[PlannedRun]
     return todo, [r for k, r in live.items() if k in keys]
 
 
+def foreign_domain_notes(store: Store, experiment: str, study: str, planned: list[PlannedRun]) -> list[str]:
+    """One line per finished run that counts as done here although its bits come from another
+    determinism domain than this machine would give it (or from no recorded one)."""
+    from ftgspp.determinism import expected_domain_id
+
+    by_key = {_key(p): p for p in planned}
+    expected: dict[tuple[str, int, str], str | None] = {}
+    notes = []
+    for rec in load_runs(store, experiment, study):
+        p = by_key.get(rec.key)
+        if rec.status != "FINISHED" or p is None:
+            continue
+        settings = (p.params.get("determinism", "default"), int(p.params.get("threads", "0")),
+                    p.params.get("dispatch", "native"))
+        if settings not in expected:
+            expected[settings] = expected_domain_id(*settings)
+        here, got = expected[settings], rec.tags.get("determinism.id", "")
+        if here is not None and got != here:
+            notes.append(f"[resume] {p.spec.label}: finished in determinism domain {got or 'unrecorded'}, this machine"
+                         f" gives {here}; counted as done (its numbers need not match a run here bit for bit)")
+    return notes
+
+
 def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jobs: int, launcher: str,
                  launcher_args: list[str], command: str, planned: list[PlannedRun],
                  todo: list[PlannedRun]) -> tuple[str, str]:
@@ -391,11 +414,14 @@ def run_study(
     exp_id = store.experiment_id(exp_name)  # created once, before any worker starts
     assert exp_id is not None
     todo, elsewhere = pending(store, exp_name, name, planned, lease_s)
+    for line in foreign_domain_notes(store, exp_name, name, planned):
+        echo(line)
     outcome = StudyOutcome(total=len(planned), skipped=len(planned) - len(todo), launched=len(todo))
     n_var, n_scene, n_seed = (len(set(x)) for x in zip(*(p.spec.key for p in planned)))
     n_done = outcome.skipped - len(elsewhere)
     echo(f"{name} ({sel.profile}): {len(planned)} runs = {n_var} variants x {n_scene} scenes x {n_seed} seeds;"
-         f" {n_done} already finished, {len(elsewhere)} running elsewhere, {len(todo)} to run"
+         f" {n_done} already finished, " + (f"{len(elsewhere)} running elsewhere, " if elsewhere else "")
+         + f"{len(todo)} to run"
          + (f" with {jobs} parallel jobs" if jobs > 1 and todo else "")
          + (f" through the {launcher} launcher" if launcher != "basic" and todo else ""))
     for rec in elsewhere:

@@ -152,3 +152,24 @@ def test_a_worker_whose_run_was_taken_over_does_not_finish_it(workdir: Path) -> 
     store = Store(f"sqlite:///{Path('mlflow.db').resolve()}")
     (rec,) = [r for r in store.search(store.experiment_id("ftgspp/toy"), "tags.kind = 'run'")]
     assert rec.info.status == "FAILED" and rec.data.tags["failure"] == "interrupted"
+
+
+def test_run_study_leaves_live_claims_to_their_owner(workdir: Path, store: Store, exp: str) -> None:
+    from conftest import TOY_STUDIES
+    from fakes import fake_generate, fake_train
+
+    from harness.plan import plan_runs
+    from harness.runner import run_study
+    from harness.studies import Selection, expand, load_study
+
+    sel = Selection(variants=["baseline"], seeds=2)
+    seed1 = next(p for p in plan_runs(expand(load_study("toy", TOY_STUDIES), sel)) if p.spec.seed == 1)
+    live = store.create_run(exp, seed1.spec.label, {**seed1.tags, "kind": "run", lease.OWNER: "node9:77",
+                                                    lease.SECONDS: "300", lease.HEARTBEAT: str(time.time())})
+    lines: list[str] = []
+    out = run_study("toy", sel, studies_dir=TOY_STUDIES, train_fn=fake_train, generate=fake_generate,
+                    echo=lines.append)
+    assert (out.launched, out.finished) == (1, 1)
+    assert "0 already finished, 1 running elsewhere, 1 to run" in lines[0]
+    assert "running elsewhere: baseline/easy/seed1 (node9:77, heartbeat" in lines[1]
+    assert store.status(live) == "RUNNING", "a live claim of another invocation is never touched"
