@@ -147,7 +147,8 @@ def _artifact_subdir(path: Path, out_dir: Path) -> str | None:
 
 @dataclass
 class RunTask:
-    """Hydra task function: one child run. Picklable, so joblib workers can run it."""
+    """Hydra task function: one child run. Picklable (plain data, no logger, lock or client
+    inside), so joblib workers and submitit jobs on other nodes can run it."""
 
     uri: str
     experiment_id: str
@@ -167,12 +168,17 @@ class RunTask:
         out_dir = Path(hydra_cfg.runtime.output_dir)
         cfg = resolve(dcfg, job.label)
         store = _store(self.uri)
-        claim = lease.acquire(store, self.experiment_id, job.label, {**job.tags, "kind": "run"}, self.lease_s)
+        claim = lease.acquire(store, self.experiment_id, job.label,
+                              {**job.tags, "kind": "run", "mlflow.parentRunId": self.parent_run_id}, self.lease_s)
         if claim.run_id is None:
             print(f"[run] {job.label}: skipped ({claim.reason})", flush=True)
             return {"label": job.label, "run_id": "", "status": "SKIPPED", "reason": claim.reason, "seconds": 0.0}
         with lease.Heartbeat(store, claim.run_id, self.lease_s) as beat, system_metrics(claim.run_id, self.uri):
-            tracker = self._open_run(store, claim, job, cfg, dcfg, out_dir)
+            try:
+                tracker = self._open_run(store, claim, job, cfg, dcfg, out_dir)
+            except Exception as exc:  # the store failed under us: do not leave the claim RUNNING
+                store.terminate(claim.run_id, "FAILED", {"failure": "harness", "error": f"{type(exc).__name__}: {exc}"})
+                raise
             t0 = time.time()
             result: RunResult | None = None
             error: Exception | None = None
