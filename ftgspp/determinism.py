@@ -193,9 +193,31 @@ def determinism_domain(mode: str, threads: int = 0) -> dict[str, str]:
         "versions": f"python {platform.python_version()}, torch {torch.__version__}, numpy {numpy.__version__}, "
                     f"numba {numba.__version__}, opencv {cv2.__version__}, glibc {platform.libc_ver()[1]}",
     }
+    info["id"] = _domain_id(info)
+    return info
+
+
+# torch's name for the kernel set each ``TrainConfig.dispatch`` value selects
+DISPATCH_CAPABILITY = {"avx512": "AVX512", "avx2": "AVX2", "baseline": "DEFAULT"}
+
+
+def _domain_id(info: dict[str, str]) -> str:
     decisive = ["mode", "torch_threads", "versions"]
-    if mode != "portable":
+    if info["mode"] != "portable":
         decisive += ["cpu_model", "isa_class", "torch_cpu_capability", "onednn", "mkl_cbwr"]
     blob = json.dumps({k: info[k] for k in decisive}, sort_keys=True)
-    info["id"] = hashlib.sha256(blob.encode()).hexdigest()[:10]
-    return info
+    return hashlib.sha256(blob.encode()).hexdigest()[:10]
+
+
+def expected_domain_id(mode: str, threads: int = 0, dispatch: str = "native") -> str | None:
+    """The domain id a run with these settings gets on this machine, computed without training;
+    None when this process cannot tell (a default-mode run asked from a process that has the
+    portable environment, whose own settings are not the machine's)."""
+    info = determinism_domain(mode, threads)
+    if mode == "portable":
+        return info["id"]
+    if os.environ.get(MARKER) == "portable":
+        return None
+    if dispatch != "native":
+        info["torch_cpu_capability"] = DISPATCH_CAPABILITY[dispatch]
+    return _domain_id(info)

@@ -96,6 +96,9 @@ def cmd_list() -> int:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
+    import pandas as pd
+
+    from harness import aggregate
     from harness.report import collect
 
     data = collect(args.name, _selection(args, required=False))
@@ -109,6 +112,9 @@ def cmd_status(args: argparse.Namespace) -> int:
         failed = sub[sub.status.isin(["FAILED", "KILLED"])]
         missing = sub[sub.status.isin(["MISSING", "RUNNING"])]
         detail = []
+        doms = sorted(set(sub[sub.status == "FINISHED"].get("domain", pd.Series(dtype=str)).dropna()) - {""})
+        if len(doms) > 1:
+            detail.append(f"MIXED determinism domains {', '.join(doms)}")
         if len(failed):
             detail.append("failed seeds " + ", ".join(f"{r.seed}" + (f" ({r.failure})" if r.failure else "")
                                                        for r in failed.itertuples()))
@@ -120,6 +126,10 @@ def cmd_status(args: argparse.Namespace) -> int:
     running = _print_running(data.uri, data.experiment, args.name)
     print(f"total: {done} done, {failed} failed, {len(df) - done - failed} missing"
           + (f"; {running} running now (listed above)" if running else ""))
+    doms = aggregate.domains(df)
+    if len(doms):
+        print("determinism domains: " + "; ".join(f"{d.domain} ({d['mode']}, {d.cpu_capability}, {d.runs} runs)"
+                                                 for _, d in doms.iterrows()))
     return 0
 
 

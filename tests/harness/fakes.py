@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from ftgspp.config import TrainConfig
+from ftgspp.determinism import determinism_domain
 from ftgspp.strategy import Relocator
 from ftgspp.tracking import RunResult, Tracker
 
@@ -32,6 +33,8 @@ def fake_psnr(cfg: TrainConfig) -> float:
 
 def fake_train(cfg: TrainConfig, out_dir: Path, tracker: Tracker) -> RunResult:
     Relocator(cfg.strategy)  # the trainer's own validation: unknown policy -> InputError
+    domain = determinism_domain(cfg.determinism, cfg.threads)  # tagged like the real trainer does
+    tracker.set_tags({f"determinism.{k}": v for k, v in domain.items()})
     crash = Path(f"crash_seed{cfg.seed}")
     if crash.exists():
         crash.unlink()

@@ -1,0 +1,41 @@
+"""Determinism domains in the harness: resume says when a finished run comes from another
+domain, and ``study status`` / ``study report`` flag cells that mix domains."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from conftest import TOY_STUDIES, prepare_workdir, use_fakes
+from fakes import fake_generate, fake_train
+
+from harness.cli import main as study_main
+from harness.records import load_runs, open_store
+from harness.report import write_report
+from harness.runner import run_study
+from harness.studies import Selection
+
+
+def test_foreign_domains_are_announced_on_resume_and_flagged_in_status_and_report(
+        tmp_path: Path, mlflow_template: Path, monkeypatch, capsys) -> None:
+    prepare_workdir(tmp_path, mlflow_template, monkeypatch)
+    use_fakes(monkeypatch)
+    sel = Selection(variants=["baseline"])
+    lines: list[str] = []
+    kw = dict(studies_dir=TOY_STUDIES, train_fn=fake_train, generate=fake_generate)
+    run_study("toy", sel, echo=lines.append, **kw)
+    assert not [ln for ln in lines if ln.startswith("[resume]")], "same machine, same domain: nothing to say"
+    store = open_store(f"sqlite:///{Path('mlflow.db').resolve()}")
+    runs = load_runs(store, "ftgspp/toy", "toy")
+    assert all(r.tags.get("determinism.id") for r in runs), "every run records its domain"
+    store.client.set_tag(runs[0].run_id, "determinism.id", "0ther0ther")  # as if made on another machine
+    lines.clear()
+    out = run_study("toy", sel, echo=lines.append, **kw)
+    notes = [ln for ln in lines if ln.startswith("[resume]")]
+    assert out.launched == 0 and len(notes) == 1 and "0ther0ther" in notes[0] and "counted as done" in notes[0]
+    capsys.readouterr()
+    assert study_main(["status", "toy", "--variants", "baseline"]) == 0
+    status = capsys.readouterr().out
+    assert "MIXED determinism domains" in status and "0ther0ther" in status
+    index = write_report("toy", sel, studies_dir=TOY_STUDIES, reports_root=tmp_path / "reports", echo=lambda s: None)
+    text = index.read_text()
+    assert "Runs from 2 determinism domains" in text and "mix runs of different domains: baseline/easy" in text
