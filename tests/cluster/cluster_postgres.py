@@ -32,7 +32,7 @@ def _runs(uri: str, study: str, kind: str = "run"):
 def test_two_concurrent_smoke_invocations_finish_each_run_once(pg_server, tmp_path: Path) -> None:
     uri = pg_server["uri"]
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
-    cmd = [str(STUDY_BIN), "run", "secret5", "--profile", "smoke", "--seeds", "3"]
+    cmd = [str(STUDY_BIN), "run", "secret5", "--profile", "smoke", "--seeds", "3", "--variants", "baseline,cc"]
     procs = [subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
              for _ in range(2)]
     outs = [p.communicate(timeout=1200)[0] for p in procs]

@@ -26,7 +26,7 @@ def test_smoke_study_runs_as_a_slurm_job_array(pg_server, slurm_cluster, tmp_pat
     env = {**os.environ, "SLURM_CONF": slurm_cluster["conf"], "MLFLOW_TRACKING_URI": pg_server["uri"],
            "PATH": f"{BIN}:{os.environ['PATH']}:/usr/sbin"}
     run = subprocess.run([str(BIN / "study"), "run", "secret5", "--profile", "smoke", "--seeds", "2",
-                          "--launcher", "slurm", *SITE], cwd=work, env=env, capture_output=True, text=True,
+                          "--variants", "baseline,cc", "--launcher", "slurm", *SITE], cwd=work, env=env, capture_output=True, text=True,
                          timeout=900)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     assert "4 finished, 0 failed" in run.stdout, run.stdout[-3000:]
