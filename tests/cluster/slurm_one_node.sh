@@ -19,7 +19,7 @@ free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",
 
 if [ "$cmd" = stop ]; then
     for pid in "$dir"/slurmd.pid "$dir"/slurmctld.pid "$dir"/munged.pid; do
-        [ -f "$pid" ] && kill "$(cat "$pid")" 2>/dev/null || true
+        [ -f "$pid" ] && kill $(cat "$pid") 2>/dev/null || true
     done
     exit 0
 fi
@@ -65,10 +65,10 @@ if ! pgrep -x munged >/dev/null; then
     mkdir -p /run/munge /var/log/munge /var/lib/munge
     chown munge: /run/munge /var/log/munge /var/lib/munge
     runuser -u munge -- munged
-    sleep 0.5
-    pgrep -x munged > "$dir"/munged.pid  # ours: `stop` ends it
+    for _ in $(seq 50); do pgrep -x munged > "$dir"/munged.pid && break; sleep 0.1; done  # ours: `stop` ends it
 fi
-munge -n | unmunge >/dev/null || { echo "error: munge does not work" >&2; exit 2; }
+for _ in $(seq 50); do munge -n 2>/dev/null | unmunge >/dev/null 2>&1 && break; sleep 0.1; done
+munge -n | unmunge >/dev/null || { echo "error: munge does not work (see /var/log/munge)" >&2; exit 2; }
 
 slurmctld -f "$conf"
 slurmd -f "$conf"
