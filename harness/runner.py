@@ -329,6 +329,10 @@ def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jo
     n_seeds = len({p.spec.seed for p in planned})
     store.log_batch(parent_id, params={"profile": sel.profile, "jobs": jobs, "launcher": launcher,
                                        "seeds": n_seeds, "base_seed": study.base_seed})
+    # the study's scenes as dataset inputs: the runs table shows them on the parent's row
+    scenes = {p.spec.scene.name: p for p in todo}.values()
+    store.log_inputs(parent_id, [scene_dataset(p.spec.scene.name, p.params["data.path"], p.params["data.format"],
+                                               p.spec.scene.synth) for p in scenes])
     if study.path is not None:  # the study definition this invocation used
         store.log_artifact(parent_id, study.path)
     return parent_id, stamp

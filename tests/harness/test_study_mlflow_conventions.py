@@ -44,6 +44,8 @@ def test_study_runs_follow_mlflow_conventions(workdir: Path, monkeypatch: pytest
     assert ds.digest == hashlib.sha256(json.dumps(synth, sort_keys=True).encode()).hexdigest()[:16]
     assert json.loads(ds.profile)["format"] == "dynerf"
     assert {t.key: t.value for t in inp.tags} == {"mlflow.data.context": "train"}
+    (parent_input,) = store.client.get_run(parent.run_id).inputs.dataset_inputs
+    assert parent_input.dataset.digest == ds.digest, "the parent row shows the study's scenes"
     system = {k for k in rec.metrics if k.startswith("system/")}
     assert {"system/cpu_utilization_percentage", "system/system_memory_usage_megabytes"} <= system
 
