@@ -38,7 +38,7 @@ def _finished() -> dict:
 def test_submitit_launcher_configs_compose_with_a_shared_folder(launcher: str, target: str, tmp_path: Path) -> None:
     from hydra import compose, initialize_config_dir
 
-    sweep = tmp_path / "shared" / "sweep"
+    sweep = tmp_path / "nfs" / "sweep"
     register()
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("train", [*launcher_overrides(launcher, sweep, 1, "study_toy"), "hydra.launcher.timeout_min=30"],
