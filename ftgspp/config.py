@@ -136,6 +136,8 @@ class TrainConfig:
     checkpoint_every: int = 1_000
     eval_every: int = 0  # 0 = only at the end
     diagnostics: bool = True  # lifetime / velocity / x-t / motion-error plots after evaluation
+    # LPIPS networks scored at evaluation (both input conventions each); VGG16 costs ~10x AlexNet
+    eval_lpips: list[str] = field(default_factory=lambda: ["alex", "vgg"])
     out_dir: str = "."
     resume: bool = True
     progress: bool = True

@@ -10,10 +10,10 @@ A few frames are saved as ``renders/<cam>_<frame>.png`` (ground truth | render).
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import logging
+from collections.abc import Sequence
 from contextlib import contextmanager
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -21,6 +21,8 @@ import torch
 
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
+from ftgspp.errors import InputError
+from ftgspp.lpips.nets import NETS
 from ftgspp.metrics import METRICS, available_metrics, evaluate_images
 from ftgspp.model import FreeTimeGaussians
 from ftgspp.view import render_view
@@ -44,12 +46,20 @@ def one_torch_thread():
         torch.set_num_threads(before)
 
 
-def lpips_models(device: torch.device) -> dict | None:
-    """Both LPIPS networks when their weights are present, else None (LPIPS keys omitted)."""
-    from ftgspp.lpips import WeightsError, load_all, missing_message
+def check_eval_lpips(nets: Sequence[str]) -> None:
+    """``InputError`` unless every name in ``nets`` is an LPIPS network."""
+    unknown = sorted(set(nets) - set(NETS))
+    if unknown:
+        raise InputError("eval_lpips", f"unknown LPIPS network(s) {unknown}; choose from {list(NETS)}")
 
+
+def lpips_models(device: torch.device, nets: Sequence[str] = NETS) -> dict | None:
+    """The LPIPS networks ``nets`` when their weights are present, else None (LPIPS keys omitted)."""
+    from ftgspp.lpips import WeightsError, load_lpips, missing_message
+
+    check_eval_lpips(nets)
     try:
-        return load_all(device=device)
+        return {net: load_lpips(net, device=device) for net in nets}
     except WeightsError:
         log.warning("%s; LPIPS is left out of the metrics", missing_message())
         return None
@@ -78,12 +88,14 @@ def evaluate(
 
 @torch.no_grad()
 def evaluate_lpips(model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig) -> dict[str, float]:
-    """LPIPS (AlexNet, VGG; both input conventions) over the held-out frames.
+    """LPIPS (the networks in ``cfg.eval_lpips``, both input conventions) over the held-out frames.
 
     Empty when the weights are missing; a metric whose network cannot take images this
     small is NaN with a one-line warning (``ftgspp.metrics.LPIPS_MIN_SIDE``).
     """
-    lpips = lpips_models(model.params["means"].device)
+    if not cfg.eval_lpips:
+        return {}
+    lpips = lpips_models(model.params["means"].device, cfg.eval_lpips)
     if lpips is None:
         return {}
     names = [n for n in available_metrics(lpips) if METRICS[n].lpips_net is not None]

@@ -32,7 +32,7 @@ from ftgspp.data.scene import Scene
 from ftgspp.determinism import apply_runtime, determinism_domain
 from ftgspp.dispatch_run import check_dispatch, child_main, needs_child, train_in_child
 from ftgspp.errors import InputError
-from ftgspp.evaluate import evaluate, evaluate_lpips
+from ftgspp.evaluate import check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
@@ -112,6 +112,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     """
     tracker = tracker or NullTracker()
     check_dispatch(cfg)
+    check_eval_lpips(cfg.eval_lpips)
     if needs_child(cfg):  # another determinism environment / kernel dispatch: train in a fresh process
         return train_in_child(cfg, tracker)
     out_dir = Path(cfg.out_dir)

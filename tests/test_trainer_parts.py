@@ -21,6 +21,7 @@ from test_trainer import params, small_cfg
 import ftgspp.trainer as trainer
 from ftgspp.color import ColorCorrection
 from ftgspp.config import DataConfig
+from ftgspp.errors import InputError
 from ftgspp.data.load import load_scene
 from ftgspp.data.synthetic import generate
 from ftgspp.evaluate import evaluate
@@ -90,6 +91,24 @@ def test_images_too_small_for_lpips_give_nan_and_a_warning_not_a_crash(tmp_path,
     assert math.isfinite(saved["lpips_vgg"]), "VGG takes 16 pixels and up"
     warnings = [r.getMessage() for r in caplog.records if "LPIPS-alex" in r.getMessage()]
     assert len(warnings) == 1 and "\n" not in warnings[0] and "32x24" in warnings[0]
+
+
+def test_eval_lpips_scores_only_the_networks_it_names(tiny_scene_dir, tiny_scene, tmp_path, lpips_weights):
+    cfg = small_cfg(tiny_scene_dir, tmp_path, iterations=2, diagnostics=False)
+    cfg.eval_lpips = ["alex"]
+    metrics = train(cfg, tiny_scene).metrics
+    assert {"lpips_alex", "lpips_alex_01"} <= set(metrics)
+    assert not any(k.startswith("lpips_vgg") for k in metrics), "VGG16 was not asked for"
+    cfg.eval_lpips = []
+    assert not any(k.startswith("lpips") for k in train(cfg, tiny_scene).metrics)
+
+
+def test_an_unknown_eval_lpips_network_is_an_input_error_before_training(tiny_scene_dir, tiny_scene, tmp_path):
+    cfg = small_cfg(tiny_scene_dir, tmp_path, iterations=2, diagnostics=False)
+    cfg.eval_lpips = ["alex", "squeeze"]
+    with pytest.raises(InputError, match="squeeze"):
+        train(cfg, tiny_scene)
+    assert not (tmp_path / "gaussians.pt").exists()
 
 
 def test_model_and_core_metrics_are_on_disk_before_optional_metrics_run(tiny_scene_dir, tiny_scene, tmp_path,
