@@ -25,7 +25,9 @@ from harness.tables import decimals, latex_escape, pretty
 
 VERDICT_MARK = {claims_mod.REPRODUCED: "✅ reproduced", claims_mod.CONTRADICTED: "❌ contradicted",
                 claims_mod.INCONCLUSIVE: "❔ inconclusive", claims_mod.NOT_TESTED: "— not tested"}
-CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy (PSNR vs train time and #Gaussians)"),
+CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per scene (PSNR vs train time and"
+                                                    " #Gaussians, Pareto fronts)"),
+          ("stability", "ladders.png", "Stability ladders: PSNR and failure rate (crash, divergence, collapse) per rung"),
           ("stability", "stability.png", "Stability: PSNR, spread and failure rate per difficulty cell"))
 
 

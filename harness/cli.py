@@ -20,6 +20,7 @@ unreachable tracking store) prints one line and exits 2 before anything is writt
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -40,8 +41,11 @@ def _csv(text: str) -> list[str]:
     return [t for t in text.split(",") if t]
 
 
-def _selection_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("name", help="study name (study list)")
+def _selection_args(p: argparse.ArgumentParser, name_optional: bool = False) -> None:
+    if name_optional:
+        p.add_argument("name", nargs="?", default=None, help="study name (study list); none with --all")
+    else:
+        p.add_argument("name", help="study name (study list)")
     p.add_argument("--profile", choices=PROFILES, default=None, help="quick (default), paper or smoke")
     p.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the profile's)")
     p.add_argument("--scenes", type=_csv, action="extend", default=[], help="comma-separated subset of scenes")
@@ -56,7 +60,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("list", help="the studies, their questions and run counts")
     run = sub.add_parser("run", help="run the missing or failed runs of a study")
     _selection_args(run)
-    run.add_argument("--jobs", type=int, default=1, help="parallel runs (Hydra joblib launcher); default 1")
+    run.add_argument("--jobs", type=int, default=None,
+                     help="parallel runs (Hydra joblib launcher); default: the profile's `jobs` (2 in the quick"
+                          " profiles: 1.36x the throughput of 1 job on 2 cores, BENCHMARKS.md), at most one per core")
     run.add_argument("--launcher", choices=LAUNCHERS, default="basic",
                      help="basic (default), joblib, local (submitit) or slurm (submitit; conf/hydra/launcher/slurm.yaml)")
     run.add_argument("--lease", type=float, default=None, metavar="SECONDS",
@@ -64,9 +70,12 @@ def build_parser() -> argparse.ArgumentParser:
                           " (default $FTGSPP_LEASE_S or 300)")
     status = sub.add_parser("status", help="done / failed / missing runs per variant, scene and seed")
     _selection_args(status)
-    report = sub.add_parser("report", help="tables and plots into reports/NAME/")
-    _selection_args(report)
+    report = sub.add_parser("report", help="tables and plots into reports/NAME/ (NAME --all: every study)")
+    _selection_args(report, name_optional=True)
     report.add_argument("--out", type=Path, default=Path("reports"), help="reports root (default: reports)")
+    report.add_argument("--all", action="store_true", help="every study, in one process (no NAME)")
+    report.add_argument("--if-changed", action="store_true",
+                        help="skip a report whose runs and code are those it was made from (reports/NAME/.fingerprint)")
     index = sub.add_parser("index", help="reports/index.md: one row per claim of every study with runs")
     index.add_argument("--out", type=Path, default=Path("reports"), help="reports root (default: reports)")
     return parser
@@ -80,17 +89,24 @@ def _selection(args: argparse.Namespace, required: bool) -> Selection | None:
                      variants=list(args.variants), overrides=list(args.overrides))
 
 
+def default_jobs(study: str, profile: str) -> int:
+    """Parallel runs when ``--jobs`` is not given: the profile's ``jobs`` (the quick profiles
+    say 2: runs spend part of their time single-threaded - evaluation, diagnostics, logging),
+    at most one per core."""
+    from harness.studies import load_study
+
+    return max(1, min(load_study(study).profile(profile).jobs, os.cpu_count() or 1))
+
+
 def cmd_list() -> int:
-    from harness.studies import list_studies, load_study
+    from harness.studies import Selection, describe_runs, expand, list_studies, load_study
 
     for name in list_studies():
         s = load_study(name)
         print(f"{name}: {s.question}")
         for prof in ("quick", "paper"):
             p = s.profiles[prof]
-            n = len(p.variants) * len(p.scenes) * p.seeds
-            print(f"    {prof:5s}: {n:4d} runs = {len(p.variants)} variants x {len(p.scenes)} scenes x {p.seeds} seeds;"
-                  f" {p.expected_runtime}")
+            print(f"    {prof:5s}: {describe_runs(expand(s, Selection(profile=prof)))}; {p.expected_runtime}")
         print(f"    run: {s.profiles['quick'].command}")
     return 0
 
@@ -165,15 +181,22 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "run":
             from harness.runner import run_study
 
-            run_study(args.name, _selection(args, required=True), jobs=args.jobs, launcher=args.launcher,
+            sel = _selection(args, required=True)
+            run_study(args.name, sel, jobs=default_jobs(args.name, sel.profile) if args.jobs is None else args.jobs,
+                      launcher=args.launcher,
                       lease_s=args.lease)
             return 0
         if args.command == "status":
             return cmd_status(args)
         if args.command == "report":
             from harness.report import write_report
+            from harness.studies import list_studies
 
-            write_report(args.name, _selection(args, required=False), reports_root=args.out)
+            if args.all == bool(args.name):
+                raise InputError("study report", "give a study name or --all (not both)")
+            for name in list_studies() if args.all else [args.name]:
+                write_report(name, _selection(args, required=False), reports_root=args.out, if_changed=args.if_changed,
+                             skip_empty=args.all)
             return 0
         if args.command == "index":
             from harness.claims_report import write_claims_index

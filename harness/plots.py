@@ -4,6 +4,7 @@
   failed runs counted under each variant (the paper's run-to-run figure);
 - ``speed_accuracy_plot``: PSNR against training time and against #Gaussians, Pareto
   front joined, the smallest budget within 0.1 dB of the best starred;
+  ``speed_accuracy_scenes_plot``: the same, one row per scene (``harness.speed_accuracy``);
 - ``stability_plot``: per difficulty cell and method, mean +- std, spread and failure rate.
 """
 
@@ -66,6 +67,35 @@ def strip_plot(df: pd.DataFrame, metric: str, variants: list[str], scenes: list[
 def speed_accuracy_plot(sa: pd.DataFrame, chosen: pd.Series | None, title: str, path: Path) -> Path:
     """PSNR vs train time and vs #Gaussians with the Pareto fronts; ``chosen`` starred."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharey=True, constrained_layout=True)
+    _speed_accuracy_row(axes, sa, chosen)
+    axes[0].set_title("PSNR vs training time")
+    axes[1].set_title("PSNR vs number of Gaussians")
+    axes[1].legend(loc="lower right", fontsize=8)
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def speed_accuracy_scenes_plot(sa: pd.DataFrame, chosen: pd.DataFrame, title: str, path: Path) -> Path:
+    """``speed_accuracy_plot`` with one row per scene of ``sa`` (``speed_accuracy.per_scene``);
+    each scene's Pareto fronts are its own, its row of ``chosen`` (``smallest_per_scene``) starred."""
+    scenes = list(dict.fromkeys(sa.scene))
+    fig, axes = plt.subplots(len(scenes), 2, figsize=(11, 4.0 * len(scenes)), sharey="row", squeeze=False,
+                             constrained_layout=True)
+    for row, scene in zip(axes, scenes):
+        cells = sa[sa.scene == scene]
+        pick = chosen[chosen.scene == scene]
+        _speed_accuracy_row(row, cells, pick.iloc[0] if len(pick) else None)
+        label = cells.scene_label.iloc[0]
+        row[0].set_title(f"{label}: PSNR vs training time")
+        row[1].set_title(f"{label}: PSNR vs number of Gaussians")
+        row[1].legend(loc="best", fontsize=8)
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def _speed_accuracy_row(axes: np.ndarray, sa: pd.DataFrame, chosen: pd.Series | None) -> None:
+    """Draw ``sa`` on two axes: PSNR vs train time, PSNR vs #Gaussians (log x); mean +- std per
+    variant coloured by iterations, Pareto front dashed, ``chosen`` starred."""
     ok = sa[sa["mean"].notna()]
     for ax, xcol, front, xlabel in (
         (axes[0], "train_seconds", "pareto_time", "training time (s)"),
@@ -89,11 +119,6 @@ def speed_accuracy_plot(sa: pd.DataFrame, chosen: pd.Series | None, title: str, 
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(pretty("psnr"))
-    axes[0].set_title("PSNR vs training time")
-    axes[1].set_title("PSNR vs number of Gaussians")
-    axes[1].legend(loc="lower right", fontsize=8)
-    fig.suptitle(title)
-    return _save(fig, path)
 
 
 def stability_plot(st: pd.DataFrame, variants: list[str], scenes: list[str], labels: dict[str, str],

@@ -13,10 +13,14 @@ Written files:
 - ``runs.csv`` (one row per run) and ``summary.csv`` (mean, std, CI, t, p per cell);
 - ``index.md``: question, exact commands, config hashes, links to all of the above;
 - ``claims.csv`` and a "Claims" section in ``table.md``, ``table.tex`` and ``index.md``: each
-  claim of the study file with its verdict (``harness.claims``, ``harness.claims_report``).
+  claim of the study file with its verdict (``harness.claims``, ``harness.claims_report``);
+- ``ladders.csv``, ``ladders.png`` and a "Stability ladders" section in ``table.md`` and
+  ``index.md`` when the profile's cells are rungs of difficulty ladders (``harness.ladders``).
 """
 
 from __future__ import annotations
+
+import hashlib
 
 import fnmatch
 import math
@@ -30,7 +34,7 @@ from typing import Any, Callable
 
 import pandas as pd
 
-from harness import aggregate, claims, claims_report, plots, tables, variance
+from harness import aggregate, claims, claims_report, ladders, plots, speed_accuracy, tables, variance
 from harness.plan import PlannedRun, plan_runs
 from harness.records import RunRecord, latest_invocation, load_runs, open_store, select
 from harness.runner import command_line, tracking_target
@@ -222,7 +226,15 @@ def write_plots(data: ReportData, out: Path) -> list[tuple[str, Path]]:
             p = plots.strip_plot(data.df, m, variants, scenes, labels, f"{name}: every run's {tables.pretty(m)}",
                                  out / f"strip_{m}.png")
             made.append((f"Per-run {tables.pretty(m)} per variant and scene", p))
-    if "speed_accuracy" in data.study.plots:
+    if "speed_accuracy" in data.study.plots and len(scenes) > 1:  # what each scene needs
+        sa = speed_accuracy.per_scene(data.df)
+        chosen_per_scene = speed_accuracy.smallest_per_scene(sa, data.df)
+        sa.to_csv(out / "speed_accuracy.csv", index=False)
+        chosen_per_scene.to_csv(out / "speed_accuracy_smallest.csv", index=False)
+        p = plots.speed_accuracy_scenes_plot(sa, chosen_per_scene, f"{name}: what does quality cost, per scene?",
+                                             out / "speed_accuracy.png")
+        made.append(("PSNR against training time and number of Gaussians per scene, Pareto fronts dashed", p))
+    elif "speed_accuracy" in data.study.plots:
         sa = aggregate.speed_accuracy(data.df)
         chosen = aggregate.smallest_within(sa)
         sa.to_csv(out / "speed_accuracy.csv", index=False)
@@ -235,6 +247,18 @@ def write_plots(data: ReportData, out: Path) -> list[tuple[str, Path]]:
                                  out / "stability.png")
         made.append(("Mean ± std PSNR, run-to-run spread and failure rate per difficulty cell", p))
     return made
+
+
+def write_ladders(data: ReportData, out: Path) -> str:
+    """Stability ladders when the profile's cells are rungs (``harness.ladders``): ``ladders.csv``,
+    ``ladders.png`` and a section appended to ``table.md``; returns its Markdown ("" when none)."""
+    scenes = data.study.profile(data.sel.profile).scenes
+    if not ladders.has_ladders(scenes):
+        return ""
+    md = ladders.write(data.df, scenes, out, f"{data.study.name}: where does each method break?")
+    with (out / "table.md").open("a") as f:
+        f.write(f"\n## Stability ladders\n\n{md}\n")
+    return md
 
 
 def _artifact_files(store: Store, run_id: str, path: str) -> list[str]:
@@ -272,7 +296,8 @@ def fetch_diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, 
 
 
 def write_index(data: ReportData, out: Path, tabs: list[tables.Table], figures: list[tuple[str, Path]],
-                diags: list[tuple[str, str, int, list[Path]]], claims_md: str = "", variance_md: str = "") -> None:
+                diags: list[tuple[str, str, int, list[Path]]], claims_md: str = "", variance_md: str = "",
+                ladders_md: str = "") -> None:
     study, df = data.study, data.df
     prof = study.profile(data.sel.profile)
     c = aggregate.counts(df)
@@ -309,14 +334,21 @@ def write_index(data: ReportData, out: Path, tabs: list[tables.Table], figures: 
         lines += ["## Claims", "", claims_md, ""]
     if variance_md:
         lines += ["## Sources of run-to-run spread", "", variance_md, ""]
+    if ladders_md:
+        lines += ["## Stability ladders", "", ladders_md, ""]
     lines += ["## Tables", "",
               "Full tables, t-tests and failures: [table.md](table.md); LaTeX: [table.tex](table.tex);",
               "per-run data: [runs.csv](runs.csv), per-cell statistics: [summary.csv](summary.csv).", ""]
     if tabs:
         lines += [f"### {tabs[0].title}", "", tables.to_markdown(tabs[0]), ""]
-    if "speed_accuracy" in study.plots:
-        chosen = aggregate.smallest_within(aggregate.speed_accuracy(df))
-        if chosen is not None:
+    if "speed_accuracy" in study.plots and df.scene.nunique() > 1:
+        lines += [speed_accuracy.report_markdown(df), "",
+                  "Per scene and variant: [speed_accuracy.csv](speed_accuracy.csv); the chosen budgets:"
+                  " [speed_accuracy_smallest.csv](speed_accuracy_smallest.csv).", ""]
+    elif "speed_accuracy" in study.plots:
+        sa = aggregate.speed_accuracy(df)
+        chosen = aggregate.smallest_within(sa)
+        if chosen is not None and sa.budget.nunique() > 1:  # a budget sweep (not e.g. a learning-rate one)
             lines += [f"**Smallest budget within 0.1 dB of the best:** `{chosen['variant']}` — budget"
                       f" {int(chosen['budget'])} Gaussians, {int(chosen['iterations'])} iterations,"
                       f" PSNR {chosen['mean']:.2f} dB, {chosen['train_seconds']:.1f} s of training.", ""]
@@ -360,21 +392,46 @@ def write_index(data: ReportData, out: Path, tabs: list[tables.Table], figures: 
     (out / "index.md").write_text("\n".join(lines))
 
 
+FINGERPRINT = ".fingerprint"  # what a report was made from: its runs and the code that wrote it
+
+
+def fingerprint(df: pd.DataFrame) -> str:
+    """A hash of the planned runs (run id, status, every metric) and of the harness code
+    version: equal fingerprints mean the report would come out the same."""
+    from harness.provenance import git_sha
+
+    cols = sorted(c for c in df.columns if c not in ("scene_label",))
+    blob = df[cols].sort_values(["variant", "scene", "seed"]).to_csv(index=False) + git_sha()
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
 def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path | None = None,
-                 reports_root: Path = REPORTS_ROOT, echo: Callable[[str], None] = print) -> Path:
-    """Write ``reports/<name>/`` and return its index path."""
+                 reports_root: Path = REPORTS_ROOT, echo: Callable[[str], None] = print,
+                 if_changed: bool = False, skip_empty: bool = False) -> Path | None:
+    """Write ``reports/<name>/`` and return its index path. ``if_changed``: leave the report as
+    it is when its runs and the code are those it was made from (``.fingerprint``).
+    ``skip_empty``: write nothing (and return None) for a study without finished runs."""
     data = collect(name, sel, studies_dir)
+    if skip_empty and not (data.df.status == "FINISHED").any():
+        echo(f"{name}: no finished runs, no report")
+        return None
     out = Path(reports_root) / name
+    stamp = fingerprint(data.df)
+    if if_changed and (out / FINGERPRINT).is_file() and (out / FINGERPRINT).read_text().strip() == stamp:
+        echo(f"{name}: report up to date ({out / 'index.md'})")
+        return out / "index.md"
     out.mkdir(parents=True, exist_ok=True)
     data.df.to_csv(out / "runs.csv", index=False)
     tabs, summaries = write_tables(data, out)
     claims_md = write_claims(data, out)
     variance_md = write_variance(data, out)
+    ladders_md = write_ladders(data, out)
     if summaries:
         pd.concat(summaries.values(), ignore_index=True).to_csv(out / "summary.csv", index=False)
     figures = write_plots(data, out)
     diags = fetch_diagnostics(data, out)
-    write_index(data, out, tabs, figures, diags, claims_md, variance_md)
+    write_index(data, out, tabs, figures, diags, claims_md, variance_md, ladders_md)
+    (out / FINGERPRINT).write_text(stamp + "\n")
     c = aggregate.counts(data.df)
     echo(f"{name}: report of {c['n_runs']} runs ({c['n_finished']} finished, {c['n_failed']} failed,"
          f" {c['n_missing'] + c['n_running']} missing) written to {out / 'index.md'}")

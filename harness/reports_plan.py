@@ -1,21 +1,30 @@
 """What ``make reports`` will run: per study, the quick profile's runs, those already
 finished in the store, and the expected time of the rest.
 
-    python -m harness.reports_plan [--profile quick] [--seconds-per-run S] [--jobs N]
+    python -m harness.reports_plan [--profile quick] [--seconds-per-run S] [--jobs N] [--todo FILE]
 
 The time per run is the median ``train_seconds`` of the finished runs in the store times
 ``OVERHEAD`` (evaluation, diagnostics, start-up), or ``--seconds-per-run`` when the store
-has none. Reads the store only; prints one line per study and the total.
+has none. Reads the store only; prints one line per study and the total, and with ``--todo``
+writes the names of the studies that have runs to do into FILE (one per line), so that
+``make reports`` starts no ``study run`` for a complete study.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 import pandas as pd
 
-OVERHEAD = 1.3  # wall time of a run / its train_seconds (evaluation, diagnostics, process start)
+OVERHEAD = 1.45  # wall time of a run / its train_seconds (evaluation, diagnostics, logging): ~12 s on ~26 s
+JOBS_SPEEDUP = 1.36  # throughput of --jobs 2 over --jobs 1 on 2 cores (BENCHMARKS.md); more jobs: no more
+
+
+def speedup(jobs: int) -> float:
+    """Measured throughput factor of ``jobs`` parallel runs on a 2-core machine."""
+    return JOBS_SPEEDUP if jobs >= 2 else 1.0
 
 
 def plan_frame(profile: str = "quick") -> pd.DataFrame:
@@ -41,6 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", default="quick")
     ap.add_argument("--seconds-per-run", type=float, default=120.0, help="when the store has no finished run")
     ap.add_argument("--jobs", type=int, default=1, help="parallel runs per study")
+    ap.add_argument("--todo", type=Path, default=None, help="write the studies with runs to do here")
     args = ap.parse_args(argv)
     try:
         plan = plan_frame(args.profile)
@@ -51,8 +61,10 @@ def main(argv: list[str] | None = None) -> int:
     source = "median of finished runs x %.1f" % OVERHEAD if len(measured) else "assumed (no finished runs yet)"
     for r in plan.itertuples():
         print(f"  {r.study:15s} {r.planned:4d} runs, {r.finished:4d} finished, {r.to_run:4d} to run"
-              f"  ~{r.to_run * per_run / max(args.jobs, 1) / 60:6.1f} min")
-    total = plan.to_run.sum() * per_run / max(args.jobs, 1)
+              f"  ~{r.to_run * per_run / speedup(args.jobs) / 60:6.1f} min")
+    if args.todo is not None:
+        args.todo.write_text("".join(f"{r.study}\n" for r in plan.itertuples() if r.to_run > 0))
+    total = plan.to_run.sum() * per_run / speedup(args.jobs)
     print(f"expected: {int(plan.to_run.sum())} of {int(plan.planned.sum())} runs to do, ~{total / 3600:.1f} h"
           f" ({per_run:.0f} s per run, {source}; --jobs {args.jobs}), then every report and reports/index.md")
     return 0

@@ -43,7 +43,7 @@ from harness.plan import PlannedRun, plan_runs, resolve
 from harness.provenance import git_sha, resolve_backend, resolve_device
 from harness.records import RunRecord, experiment_name, load_runs
 from harness.scenes import Generator, ensure_scene
-from harness.studies import SceneSpec, Selection, StudySpec, expand, load_study
+from harness.studies import SceneSpec, Selection, StudySpec, describe_runs, expand, load_study
 from harness.tracking import MlflowTracker, Store, check_store, resolve_uri
 
 OUT_ROOT = Path("outputs/studies")
@@ -427,9 +427,8 @@ def run_study(
     for line in foreign_domain_notes(store, exp_name, name, planned):
         echo(line)
     outcome = StudyOutcome(total=len(planned), skipped=len(planned) - len(todo), launched=len(todo))
-    n_var, n_scene, n_seed = (len(set(x)) for x in zip(*(p.spec.key for p in planned)))
     n_done = outcome.skipped - len(elsewhere)
-    echo(f"{name} ({sel.profile}): {len(planned)} runs = {n_var} variants x {n_scene} scenes x {n_seed} seeds;"
+    echo(f"{name} ({sel.profile}): {describe_runs([p.spec for p in planned])};"
          f" {n_done} already finished, " + (f"{len(elsewhere)} running elsewhere, " if elsewhere else "")
          + f"{len(todo)} to run"
          + (f" with {jobs} parallel jobs" if jobs > 1 and todo else "")

@@ -64,6 +64,10 @@ class SceneSpec:
     overrides: tuple[str, ...] = ()  # e.g. data.path=..., lr.scale=3
     label: str = ""  # human-readable column title (default: name)
     synth_dir: str = ""  # where the synthetic scene lives, relative to the working directory
+    seeds: int | None = None  # this scene's seed count (default: the profile's; --seeds wins)
+    variants: tuple[str, ...] = ()  # the variants run on this scene (default: all)
+    # stability ladders this cell is a rung of: ladder name -> rung value (e.g. {lr_scale: 3})
+    rungs: tuple[tuple[str, float], ...] = ()
 
     @property
     def title(self) -> str:
@@ -87,6 +91,7 @@ class ProfileSpec:
     expected_runtime: str = ""
     command: str = ""
     baseline: str = ""
+    jobs: int = 1  # parallel runs when `study run` is given no --jobs
 
 
 @dataclass(frozen=True)
@@ -227,7 +232,15 @@ def _parse_scene(raw: Any, where: str, profile: str) -> SceneSpec:
         synth = {"preset": "studio", "seed": 0, "layout": "dynerf", **synth}
         suffix = "-smoke" if profile == "smoke" else ""
         synth_dir = (SYNTH_ROOT / f"{name}{suffix}").as_posix()
-    return SceneSpec(name, synth, overrides, str(raw.get("label", "")), synth_dir)
+    seeds = raw.get("seeds")
+    _require(seeds is None or (isinstance(seeds, int) and seeds >= 1), f"{where}.seeds", "must be a positive integer")
+    variants = _str_list(raw.get("variants"), f"{where}.variants")
+    rungs_raw = raw.get("rungs") or {}
+    _require(isinstance(rungs_raw, dict) and all(isinstance(k, str) and isinstance(v, (int, float))
+                                                  for k, v in rungs_raw.items()),
+             f"{where}.rungs", "must map ladder names to numbers (e.g. {lr_scale: 3})")
+    rungs = tuple((k, float(v)) for k, v in rungs_raw.items())
+    return SceneSpec(name, synth, overrides, str(raw.get("label", "")), synth_dir, seeds, variants, rungs)
 
 
 def _parse_profile(name: str, raw: Any, where: str, variants: Any, sets: dict[str, Any]) -> ProfileSpec:
@@ -242,7 +255,13 @@ def _parse_profile(name: str, raw: Any, where: str, variants: Any, sets: dict[st
     _require(len(set(names)) == len(names), f"{where}.scenes", "scene names must be unique")
     seeds = raw.get("seeds", 1)
     _require(isinstance(seeds, int) and seeds >= 1, f"{where}.seeds", "must be a positive integer")
+    jobs = raw.get("jobs", 1)
+    _require(isinstance(jobs, int) and jobs >= 1, f"{where}.jobs", "must be a positive integer")
     prof_variants = _parse_variants(raw["variants"], f"{where}.variants") if "variants" in raw else variants
+    for s in scenes:
+        for v in s.variants:
+            _require(v in prof_variants, f"{where}.scenes.{s.name}.variants",
+                     f"unknown variant '{v}' (have {', '.join(prof_variants)})")
     return ProfileSpec(
         name=name,
         seeds=seeds,
@@ -252,6 +271,7 @@ def _parse_profile(name: str, raw: Any, where: str, variants: Any, sets: dict[st
         expected_runtime=str(raw.get("expected_runtime", "")),
         command=str(raw.get("command", "")),
         baseline=str(raw.get("baseline", "")),
+        jobs=jobs,
     )
 
 
@@ -264,7 +284,8 @@ def _smoke_from_quick(quick: ProfileSpec, study: str) -> ProfileSpec:
             tiny["n_cameras"] = int(synth["n_cameras"])
         synth.update(tiny)
         keep = tuple(o for o in s.overrides if not o.startswith("data.path="))
-        scenes.append(SceneSpec(s.name, synth, keep, s.label, (SYNTH_ROOT / f"{s.name}-smoke").as_posix()))
+        scenes.append(SceneSpec(s.name, synth, keep, s.label, (SYNTH_ROOT / f"{s.name}-smoke").as_posix(),
+                                None, s.variants, s.rungs))
     return ProfileSpec(
         name="smoke",
         seeds=1,  # the quick profile's own overrides (e.g. determinism=portable) carry over
@@ -423,7 +444,11 @@ def _pick(requested: list[str], available: list[str], what: str) -> list[str]:
 
 
 def expand(study: StudySpec, sel: Selection) -> list[RunSpec]:
-    """All runs of ``study`` for ``sel``: seed-major, then scene, then variant."""
+    """All runs of ``study`` for ``sel``: seed-major, then scene, then variant.
+
+    A scene may name its own seed count and the subset of variants run on it (ladder rungs
+    with fewer seeds, a tuning scene with its own sweep); ``--seeds`` sets every scene's.
+    """
     prof = study.profile(sel.profile)
     for o in sel.overrides:
         _require("=" in o, f"override '{o}'", "expected key=value")
@@ -432,13 +457,20 @@ def expand(study: StudySpec, sel: Selection) -> list[RunSpec]:
     variants = _pick(sel.variants, list(prof.variants), "variant")
     scene_names = _pick(sel.scenes, [s.name for s in prof.scenes], "scene")
     scenes = [s for s in prof.scenes if s.name in scene_names]
-    n_seeds = prof.seeds if sel.seeds is None else sel.seeds
-    _require(n_seeds >= 1, "--seeds", "must be at least 1")
+    _require(sel.seeds is None or sel.seeds >= 1, "--seeds", "must be at least 1")
+
+    def seeds_of(scene: SceneSpec) -> int:
+        return sel.seeds if sel.seeds is not None else scene.seeds or prof.seeds
+
     runs = []
-    for r in range(n_seeds):
+    for r in range(max(seeds_of(s) for s in scenes)):
         seed = study.base_seed + r
         for scene in scenes:
+            if r >= seeds_of(scene):
+                continue
             for variant in variants:
+                if scene.variants and variant not in scene.variants:
+                    continue
                 overrides = (
                     *prof.overrides,
                     *scene.data_overrides(),
@@ -447,4 +479,17 @@ def expand(study: StudySpec, sel: Selection) -> list[RunSpec]:
                     f"seed={seed}",
                 )
                 runs.append(RunSpec(study.name, prof.name, variant, scene, seed, overrides))
+    _require(bool(runs), f"--scenes {','.join(scene_names)} --variants {','.join(variants)}",
+             "no run of the study has this scene and variant (a scene may run only some variants: study list)")
     return runs
+
+
+def describe_runs(runs: list[RunSpec]) -> str:
+    """``"12 runs = 2 variants x 3 scenes x 2 seeds"``, or ``"... up to ..."`` when scenes
+    carry their own seed counts or variant subsets and the runs are not the full product."""
+    if not runs:
+        return "0 runs"
+    n_var, n_scene, n_seed = (len(set(x)) for x in zip(*(r.key for r in runs)))
+    full = n_var * n_scene * n_seed == len(runs)
+    return (f"{len(runs)} runs = {n_var} variants x {n_scene} scenes x {n_seed} seeds" if full else
+            f"{len(runs)} runs over {n_var} variants x {n_scene} scenes, up to {n_seed} seeds (per-scene seeds and variants)")

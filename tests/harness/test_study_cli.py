@@ -27,7 +27,10 @@ def test_list_names_every_study_with_run_counts(capsys: pytest.CaptureFixture[st
     out = capsys.readouterr().out
     for name in ("secret1", "secret5", "lpips", "ablation", "speed_accuracy", "stability"):
         assert f"{name}: " in out
-    assert "quick:   30 runs = 6 variants x 1 scenes x 5 seeds" in out
+    from harness.studies import Selection, expand, load_study
+
+    n = len(expand(load_study("secret5"), Selection(profile="quick")))
+    assert f"quick: {n} runs = 5 variants x 1 scenes x 5 seeds" in out  # what `study run` would plan
 
 
 def test_unknown_study_is_one_line_exit_2_and_creates_no_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,

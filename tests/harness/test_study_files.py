@@ -30,7 +30,7 @@ def test_study_composes_in_every_profile(name: str, monkeypatch: pytest.MonkeyPa
             assert prof.command.startswith(("study run", "DYNERF_ROOT")) and prof.expected_runtime
         # one seed is enough: seeds only change the trailing seed= override
         planned = plan_runs(expand(study, Selection(profile=prof.name, seeds=1)))
-        assert len(planned) == len(prof.variants) * len(prof.scenes)
+        assert len(planned) == sum(len(s.variants or prof.variants) for s in prof.scenes)
         assert len({p.config_hash for p in planned}) == len(planned), "two runs of a study must differ"
         for p in planned:
             assert p.params["profile"] == prof.name
@@ -102,4 +102,42 @@ def test_study_file_validation(tmp_path: Path) -> None:
     raw = yaml.safe_load((Path(__file__).parent / "studies" / "toy.yaml").read_text())
     raw["plots"] = ["pie"]
     with pytest.raises(InputError, match="unknown plot"):
+        parse_study(raw, tmp_path / "toy.yaml")
+
+
+def _toy() -> dict:
+    return yaml.safe_load((Path(__file__).parent / "studies" / "toy.yaml").read_text())
+
+
+def test_scenes_may_carry_their_own_seeds_variants_and_rungs(tmp_path: Path) -> None:
+    raw = _toy()
+    quick = raw["profiles"]["quick"]
+    base = dict(quick["scenes"][0])
+    variants = list(raw["variants"])
+    quick["seeds"] = 3
+    quick["scenes"] = [
+        {**base, "name": "base", "rungs": {"lr_scale": 1, "cameras": 10}},
+        {**base, "name": "rung", "seeds": 1, "variants": variants[:1], "rungs": {"lr_scale": 3}},
+    ]
+    study = parse_study(raw, tmp_path / "toy.yaml")
+    runs = expand(study, Selection(profile="quick"))
+    keys = {r.key for r in runs}
+    assert {k for k in keys if k[1] == "base"} == {(v, "base", s) for v in variants for s in (0, 1, 2)}
+    assert {k for k in keys if k[1] == "rung"} == {(variants[0], "rung", 0)}
+    assert len(runs) == len(keys) == 3 * len(variants) + 1
+    assert dict(study.profile("quick").scenes[1].rungs) == {"lr_scale": 3.0}
+    # --seeds sets every scene's count; the smoke profile keeps the variant subsets
+    assert {r.key for r in expand(study, Selection(profile="quick", seeds=2)) if r.scene.name == "rung"} == \
+        {(variants[0], "rung", 0), (variants[0], "rung", 1)}
+    assert {r.variant for r in expand(study, Selection(profile="smoke")) if r.scene.name == "rung"} == {variants[0]}
+    with pytest.raises(InputError, match="no run of the study"):  # the rung runs only the first variant
+        expand(study, Selection(profile="quick", scenes=["rung"], variants=[variants[1]]))
+
+
+@pytest.mark.parametrize("bad, match", [({"seeds": 0}, "seeds"), ({"variants": ["nosuch"]}, "nosuch"),
+                                        ({"rungs": {"lr": "high"}}, "rungs")])
+def test_bad_per_scene_keys_are_input_errors(tmp_path: Path, bad: dict, match: str) -> None:
+    raw = _toy()
+    raw["profiles"]["quick"]["scenes"][0].update(bad)
+    with pytest.raises(InputError, match=match):
         parse_study(raw, tmp_path / "toy.yaml")

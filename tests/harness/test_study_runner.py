@@ -113,6 +113,24 @@ def test_status_and_report(toy, capsys: pytest.CaptureFixture[str]) -> None:
     assert "(2/2 failed, 2 diverged)" in table and "**25.69 ± 0.18**" in table  # cc, seeds 0 and 1
 
 
+def test_report_if_changed_skips_only_an_unchanged_report(toy, capsys: pytest.CaptureFixture[str]) -> None:
+    use_fakes(toy["mp"])
+    from harness.cli import main
+
+    assert main(["report", "toy"]) == 0
+    stamp = toy["work"] / "reports" / "toy" / ".fingerprint"
+    made = stamp.stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(["report", "--all", "--if-changed"]) == 0
+    assert "toy: report up to date" in capsys.readouterr().out and stamp.stat().st_mtime_ns == made
+    _run(Selection(variants=["baseline"], seeds=3))  # a new finished run: the report is stale
+    assert main(["report", "toy", "--if-changed"]) == 0
+    assert "report of" in capsys.readouterr().out and stamp.stat().st_mtime_ns != made
+    with pytest.raises(SystemExit) as exc:  # a name and --all, or neither: one line, exit 2
+        main(["report", "toy", "--all"])
+    assert exc.value.code == 2
+
+
 def test_crashed_and_killed_runs_are_failed_then_rerun(workdir: Path) -> None:
     sel = Selection(variants=["baseline"])
     Path("crash_seed1").write_text("")

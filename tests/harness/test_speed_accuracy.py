@@ -1,0 +1,208 @@
+"""Per-scene speed against accuracy on constructed runs whose answer is planted.
+
+Three scenes: on ``static`` the smallest budget is 0.05 dB below the best (within 0.1 dB,
+but three noisy seeds cannot settle it); on ``studio`` the smallest budget is 0.02 dB below
+with almost no noise (settled); on ``fast`` only the largest budget is within 0.1 dB. The
+Welch interval is checked against a hand computation (Welch-Satterthwaite degrees of freedom).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from harness import aggregate, plots
+from harness.speed_accuracy import markdown, pair_sentences, per_scene, report_markdown, smallest_per_scene
+
+LABELS = {"static": "Static", "studio": "Studio", "fast": "Fast motion"}
+# (scene, variant) -> PSNR per seed, None = a failed run; absent pairs were never planned.
+PSNR = {
+    ("static", "b500_i1000"): [30.00, 30.20, 30.05],  # mean 30.0833, 0.05 below the best
+    ("static", "b1000_i1000"): [30.10, 30.25, 30.05],  # mean 30.1333: best
+    ("static", "b5000_i1000"): [30.08, 30.12, 30.10],  # mean 30.10
+    ("static", "b2500_i1000"): [29.00, 29.10, 29.20],  # only on static
+    ("studio", "b500_i1000"): [28.480, 28.482],  # mean 28.481, 0.02 below the best
+    ("studio", "b1000_i1000"): [28.500, 28.502],  # mean 28.501: best
+    ("studio", "b5000_i1000"): [28.490, 28.492],
+    ("fast", "b500_i1000"): [24.0, 24.2],
+    ("fast", "b1000_i1000"): [25.0, 25.4],
+    ("fast", "b5000_i1000"): [26.0, 26.3],  # best, and the only one within 0.1 dB
+    ("fast", "b5000_i300"): [None, None],  # every run failed
+}
+
+
+def _budget_iterations(variant: str) -> tuple[float, float]:
+    b, i = variant.split("_")
+    return float(b[1:]), float(i[1:])
+
+
+def _frame(psnr: dict[tuple[str, str], list[float | None]] = PSNR) -> pd.DataFrame:
+    """One row per planned run, as ``aggregate.runs_frame`` makes them."""
+    rows = []
+    for (scene, variant), values in psnr.items():
+        budget, iterations = _budget_iterations(variant)
+        for seed, x in enumerate(values):
+            rows.append({
+                "variant": variant, "scene": scene, "seed": seed, "config_hash": f"{variant}{scene}{seed}",
+                "scene_label": LABELS.get(scene, scene), "budget": budget, "iterations": iterations,
+                "status": "FAILED" if x is None else "FINISHED", "failure": "", "error": "", "run_id": "r",
+                "psnr": math.nan if x is None else x,
+                "train_seconds": math.nan if x is None else iterations * (1 + budget / 1000) / 100 + 0.01 * seed,
+                "n_gaussians": math.nan if x is None else budget,
+            })
+    return pd.DataFrame(rows)
+
+
+def _values(scene: str, variant: str) -> np.ndarray:
+    return np.array([x for x in PSNR[(scene, variant)] if x is not None])
+
+
+def test_one_row_per_scene_and_variant_that_ran_missing_cells_absent() -> None:
+    sa = per_scene(_frame())
+    assert len(sa) == len(PSNR)
+    assert ("fast", "b2500_i1000") not in set(zip(sa.scene, sa.variant))  # never planned on fast
+    cells = sa.set_index(["scene", "variant"])
+    for (scene, variant), values in PSNR.items():
+        x = np.array([v for v in values if v is not None])
+        row = cells.loc[(scene, variant)]
+        assert (row.n, row.n_failed) == (len(x), len(values) - len(x))
+        assert (row.budget, row.iterations) == _budget_iterations(variant)
+        if len(x) == 0:
+            assert math.isnan(row["mean"]) and not row.pareto_time and not row.pareto_gaussians
+            continue
+        assert row["mean"] == pytest.approx(x.mean())
+        assert row["std"] == pytest.approx(x.std(ddof=1))
+        lo, hi = stats.t.interval(0.95, len(x) - 1, loc=x.mean(), scale=x.std(ddof=1) / math.sqrt(len(x)))
+        assert row.ci95 == pytest.approx((hi - lo) / 2, rel=1e-10)
+    assert cells.loc[("studio", "b500_i1000"), "scene_label"] == "Studio"
+
+
+def test_a_single_run_has_no_confidence_interval() -> None:
+    sa = per_scene(_frame({("s", "b500_i1000"): [30.0], ("s", "b1000_i1000"): [30.5, 30.7]}))
+    assert math.isnan(sa.set_index("variant").loc["b500_i1000", "ci95"])
+
+
+def test_pareto_fronts_are_computed_within_each_scene() -> None:
+    # On scene a, x and y trade time for quality; scene b's z is faster and better than both,
+    # so pooled over scenes neither would be on the front.
+    runs = _frame({("a", "b500_i1000"): [20.0, 20.0], ("a", "b5000_i1000"): [25.0, 25.0],
+                   ("b", "b500_i300"): [30.0, 30.0], ("b", "b5000_i300"): [10.0, 10.0]})
+    sa = per_scene(runs)
+    pooled = aggregate.pareto_mask(sa.train_seconds.to_numpy(), sa["mean"].to_numpy())
+    assert pooled.tolist() == [False, False, True, False]
+    front = sa.set_index(["scene", "variant"])
+    assert front.loc[("a", "b500_i1000"), "pareto_time"] and front.loc[("a", "b5000_i1000"), "pareto_time"]
+    assert front.loc[("a", "b500_i1000"), "pareto_gaussians"] and front.loc[("a", "b5000_i1000"), "pareto_gaussians"]
+    assert front.loc[("b", "b500_i300"), "pareto_time"] and not front.loc[("b", "b5000_i300"), "pareto_time"]
+    assert not front.loc[("b", "b5000_i300"), "pareto_gaussians"]
+
+
+def test_smallest_budget_per_scene_is_the_planted_one() -> None:
+    df = _frame()
+    chosen = smallest_per_scene(per_scene(df), df, tol_db=0.1).set_index("scene")
+    assert chosen.index.tolist() == ["static", "studio", "fast"]
+    assert chosen.loc["static", "variant"] == "b500_i1000" and chosen.loc["static", "best_variant"] == "b1000_i1000"
+    assert chosen.loc["studio", "variant"] == "b500_i1000"
+    assert chosen.loc["fast", "variant"] == "b5000_i1000" == chosen.loc["fast", "best_variant"]
+    assert chosen.loc["static", "gap"] == pytest.approx(_values("static", "b1000_i1000").mean()
+                                                        - _values("static", "b500_i1000").mean())
+    assert chosen.loc["fast", "gap"] == 0 and chosen.loc["fast", "gap_ci95"] == 0
+    assert chosen.loc["static", "mean"] == pytest.approx(_values("static", "b500_i1000").mean())
+    # tighter tolerance: static's 0.05 dB gap no longer qualifies; the next budget is the best
+    tight = smallest_per_scene(per_scene(df), df, tol_db=0.04).set_index("scene")
+    assert tight.loc["static", "variant"] == "b1000_i1000"
+
+
+def _welch_half_width(a: np.ndarray, b: np.ndarray) -> float:
+    va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
+    dof = (va + vb) ** 2 / (va**2 / (len(a) - 1) + vb**2 / (len(b) - 1))
+    return stats.t.ppf(0.975, dof) * math.sqrt(va + vb)
+
+
+def test_gap_ci_is_welchs_and_says_whether_within_a_tenth_is_settled() -> None:
+    df = _frame()
+    chosen = smallest_per_scene(per_scene(df), df, tol_db=0.1).set_index("scene")
+    for scene in ("static", "studio"):
+        best, pick = _values(scene, "b1000_i1000"), _values(scene, "b500_i1000")
+        assert chosen.loc[scene, "gap_ci95"] == pytest.approx(_welch_half_width(best, pick), rel=1e-10)
+    assert chosen.loc["static", "gap_ci95"] > 0.05  # 0.05 +- more than 0.05 reaches 0.1: not settled
+    assert chosen.loc["static", "gap_ci_includes_tol"]
+    assert not chosen.loc["studio", "gap_ci_includes_tol"]  # 0.02 +- ~0.006: settled
+    assert not chosen.loc["fast", "gap_ci_includes_tol"]  # the best itself: gap exactly 0
+
+
+def test_gap_ci_is_missing_with_fewer_than_two_runs() -> None:
+    df = _frame({("s", "b500_i1000"): [30.0, None], ("s", "b1000_i1000"): [30.05, 30.06]})
+    chosen = smallest_per_scene(per_scene(df), df).iloc[0]
+    assert chosen.variant == "b500_i1000"
+    assert math.isnan(chosen.gap_ci95) and pd.isna(chosen.gap_ci_includes_tol)
+
+
+def test_markdown_table_and_scene_comparisons_come_from_the_data() -> None:
+    df = _frame()
+    chosen = smallest_per_scene(per_scene(df), df)
+    assert pair_sentences(chosen) == [
+        "Static and Studio both need 500 Gaussians; not settled for Static (the gap's CI reaches the tolerance).",
+        "Static needs 500 Gaussians, Fast motion 5000 (10× as many); not settled for Static"
+        " (the gap's CI reaches the tolerance).",
+        "Studio needs 500 Gaussians, Fast motion 5000 (10× as many).",
+    ]
+    table = markdown(chosen).splitlines()
+    assert len([row for row in table if row.startswith("| ")]) == 1 + 3  # header + one row per scene
+    static = next(row for row in table if row.startswith("| Static |"))
+    assert "500 (`b500_i1000`)" in static and "`b1000_i1000`" in static and "30.08 ±" in static
+    section = report_markdown(df)
+    assert section.startswith("### Smallest budget within 0.1 dB of the best, per scene")
+    assert "No finished runs" not in section
+
+
+def test_per_scene_figure_is_written(tmp_path: Path) -> None:
+    df = _frame()
+    sa = per_scene(df)
+    path = plots.speed_accuracy_scenes_plot(sa, smallest_per_scene(sa, df), "test", tmp_path / "sa.png")
+    assert path.is_file() and path.stat().st_size > 10_000
+
+
+def _study():
+    """A three-scene study whose scenes run their own seeds and variant subsets, as in ``PSNR``."""
+    from harness.studies import parse_study
+
+    variants = {v: [f"budget={v.split('_')[0][1:]}", f"iterations={v.split('_')[1][1:]}"]
+                for v in ("b500_i1000", "b1000_i1000", "b2500_i1000", "b5000_i1000", "b5000_i300")}
+    synth = {"preset": "studio", "seed": 0}
+    scenes = [
+        {"name": "static", "label": "Static", "synth": synth, "seeds": 3,
+         "variants": ["b500_i1000", "b1000_i1000", "b2500_i1000", "b5000_i1000"]},
+        {"name": "studio", "label": "Studio", "synth": synth, "variants": ["b500_i1000", "b1000_i1000", "b5000_i1000"]},
+        {"name": "fast", "label": "Fast motion", "synth": synth,
+         "variants": ["b500_i1000", "b1000_i1000", "b5000_i1000", "b5000_i300"]},
+    ]
+    raw = {"name": "sa3", "question": "What does each scene need?", "baseline": "b5000_i1000",
+           "variants": variants, "plots": ["speed_accuracy"], "table": {"layout": "variants_x_metrics"},
+           "profiles": {"quick": {"seeds": 2, "scenes": scenes}, "paper": {"seeds": 2, "scenes": scenes}}}
+    return parse_study(raw, Path("sa3.yaml"))
+
+
+def test_multi_scene_report_writes_the_per_scene_csv_figure_and_section(tmp_path: Path) -> None:
+    from harness.report import ReportData, write_index, write_plots
+    from harness.studies import Selection, expand
+
+    study, df = _study(), _frame()
+    planned = {(r.variant, r.scene.name, r.seed) for r in expand(study, Selection())}
+    assert planned == set(zip(df.variant, df.scene, df.seed))  # the planted cells are what the planner makes
+    data = ReportData(study, Selection(), [], df, "sqlite:///mlflow.db", "ftgspp/sa3", [], None)
+    figures = write_plots(data, tmp_path)
+    write_index(data, tmp_path, [], figures, [])
+    assert [p.name for _, p in figures] == ["speed_accuracy.png"]
+    sa = pd.read_csv(tmp_path / "speed_accuracy.csv")
+    assert len(sa) == len(PSNR) and set(sa.scene) == set(LABELS)
+    smallest = pd.read_csv(tmp_path / "speed_accuracy_smallest.csv").set_index("scene")
+    assert smallest.loc["fast", "variant"] == "b5000_i1000"
+    index = (tmp_path / "index.md").read_text()
+    assert "### Smallest budget within 0.1 dB of the best, per scene" in index
+    assert "- Studio needs 500 Gaussians, Fast motion 5000 (10× as many)." in index
