@@ -58,6 +58,7 @@ class JobInfo:
     tags: dict[str, str]
     config_hash: str
     synth: dict[str, Any] | None = None  # synthetic scene args (part of the hash)
+    threads: str = ""  # torch threads the plan assumed (a joblib worker may get fewer)
 
 
 @dataclass
@@ -215,7 +216,10 @@ class RunTask:
         }
         params = flatten_config(cfg)
         actual = config_hash(params, job.synth)
-        if actual != job.config_hash:  # the launcher's full composition disagrees with the plan
+        # joblib (loky) workers get cores / jobs torch threads: the params say what the run used,
+        # the hash stays the planned one; only another difference is worth a warning
+        same_but_threads = config_hash({**params, "threads": job.threads}, job.synth) == job.config_hash
+        if actual != job.config_hash and not same_but_threads:  # the launcher's composition disagrees
             print(f"[run] {job.label}: warning: config hash {actual} differs from planned {job.config_hash}")
             tags["config_hash_actual"] = actual
         tracker = MlflowTracker(store, claim.run_id)
@@ -449,7 +453,8 @@ def run_study(
         uri=uri,
         experiment_id=exp_id,
         parent_run_id=parent_id,
-        jobs=[JobInfo(p.spec.label, p.tags, p.config_hash, p.spec.scene.synth) for p in todo],
+        jobs=[JobInfo(p.spec.label, p.tags, p.config_hash, p.spec.scene.synth, p.params.get("threads", ""))
+              for p in todo],
         progress_path=str(sweep_dir / "progress.jsonl"),
         started_at=time.time(),
         train_fn=train_fn,
