@@ -44,6 +44,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from harness.plots import save_figure  # noqa: E402
 from harness.studies import SceneSpec  # noqa: E402
 
 METRIC = "psnr"
@@ -203,12 +204,12 @@ def first_breaks(table: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for (lad, v), sub in table.groupby(["ladder", "variant"], sort=False):
         tried = sub[sub.n_attempted > 0]
-        broken = tried[tried.failure_rate > 0]
-        if len(broken):
-            b = broken.iloc[0]
-            text, at, scene = f"{lad} {b.rung:g} ({b.scene_label})", float(b.rung), b.scene
+        at = float(sub.first_break.iloc[0])  # ladder_table's _first_break
+        if not math.isnan(at):
+            b = sub[sub.rung == at].iloc[0]
+            text, scene = f"{lad} {b.rung:g} ({b.scene_label})", b.scene
         else:
-            text, at, scene = (f"none up to {lad} {tried.rung.iloc[-1]:g}" if len(tried) else "no runs"), math.nan, ""
+            text, scene = (f"none up to {lad} {tried.rung.iloc[-1]:g}" if len(tried) else "no runs"), ""
         rows.append({"ladder": lad, "variant": v, "role": sub.role.iloc[0], "first_break": at,
                      "scene": scene, "text": text})
     return pd.DataFrame(rows)
@@ -341,10 +342,7 @@ def ladder_plot(table: pd.DataFrame, runs: pd.DataFrame, scenes: Sequence[SceneS
     axes[0][0].legend(fontsize=7, loc="best")
     fig.suptitle(f"{title}\nfailed runs: crash(ed), div(erged), coll(apsed) = finished"
                  f" > {COLLAPSE_DB:g} dB below the method's base-cell mean")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def write(df: pd.DataFrame, scenes: Sequence[SceneSpec], out: Path, title: str) -> str:

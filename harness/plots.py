@@ -22,7 +22,8 @@ import pandas as pd  # noqa: E402
 from harness.tables import pretty  # noqa: E402
 
 
-def _save(fig: plt.Figure, path: Path) -> Path:
+def save_figure(fig: plt.Figure, path: Path) -> Path:
+    """Write ``fig`` to ``path`` (parents created, 120 dpi, tight) and close it."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
@@ -61,7 +62,7 @@ def strip_plot(df: pd.DataFrame, metric: str, variants: list[str], scenes: list[
     if handles:
         axes[0][0].legend(handles, names, loc="best", fontsize=8)
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def speed_accuracy_plot(sa: pd.DataFrame, chosen: pd.Series | None, title: str, path: Path) -> Path:
@@ -72,7 +73,7 @@ def speed_accuracy_plot(sa: pd.DataFrame, chosen: pd.Series | None, title: str, 
     axes[1].set_title("PSNR vs number of Gaussians")
     axes[1].legend(loc="lower right", fontsize=8)
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def speed_accuracy_scenes_plot(sa: pd.DataFrame, chosen: pd.DataFrame, title: str, path: Path) -> Path:
@@ -90,7 +91,7 @@ def speed_accuracy_scenes_plot(sa: pd.DataFrame, chosen: pd.DataFrame, title: st
         row[1].set_title(f"{label}: PSNR vs number of Gaussians")
         row[1].legend(loc="best", fontsize=8)
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _speed_accuracy_row(axes: np.ndarray, sa: pd.DataFrame, chosen: pd.Series | None) -> None:
@@ -149,4 +150,4 @@ def stability_plot(st: pd.DataFrame, variants: list[str], scenes: list[str], lab
     axes[2].set_ylim(0, 105)
     axes[0].legend(title="method", fontsize=8)
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)

@@ -215,11 +215,10 @@ class RunTask:
             "out_dir": str(out_dir),
         }
         params = flatten_config(cfg)
-        actual = config_hash(params, job.synth)
         # joblib (loky) workers get cores / jobs torch threads: the params say what the run used,
         # the hash stays the planned one; only another difference is worth a warning
-        same_but_threads = config_hash({**params, "threads": job.threads}, job.synth) == job.config_hash
-        if actual != job.config_hash and not same_but_threads:  # the launcher's composition disagrees
+        if config_hash({**params, "threads": job.threads}, job.synth) != job.config_hash:
+            actual = config_hash(params, job.synth)
             print(f"[run] {job.label}: warning: config hash {actual} differs from planned {job.config_hash}")
             tags["config_hash_actual"] = actual
         tracker = MlflowTracker(store, claim.run_id)
