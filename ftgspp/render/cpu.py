@@ -80,17 +80,10 @@ def _forward(
     """Bin, balance and composite (float32 numpy in, kernel outputs out)."""
     binning = _k.bin_gaussians(m2d, con, opa, rad, width, height)
     workers = _k.balance_tiles(binning.tile_cost, numba.get_num_threads())
-    keys = depth_sort_keys(dep)
-
-    def composite(tile_cap: np.ndarray) -> _k.Forward:
-        return _k.render_forward(
-            m2d, con, col, opa, dep, keys, bg, binning.offsets, binning.pair_gauss, binning.span, tile_cap,
-            binning.rect, binning.gauss_off, *workers, width, height,
-        )  # fmt: skip
-
-    fwd = composite(binning.tile_cap)  # also depth-sorts binning.pair_gauss per tile
-    if (fwd.tile_work > binning.tile_cap).any():  # the record bound failed: redo, sized exactly
-        fwd = composite(fwd.tile_work.astype(np.int64))
+    fwd = _k.render_forward(
+        m2d, con, col, opa, dep, depth_sort_keys(dep), bg, binning.offsets, binning.pair_gauss, binning.span,
+        binning.rect, binning.gauss_off, *workers, width, height,
+    )  # fmt: skip  (also depth-sorts binning.pair_gauss per tile)
     return binning, fwd
 
 
@@ -125,8 +118,8 @@ class _RasterizeCPU(torch.autograd.Function):
 
         workers = _k.balance_tiles(fwd.tile_work, numba.get_num_threads())
         pair_grads, bg_grads = _k.render_backward(
-            m2d, con, col, opa, dep, bg, binning.offsets, binning.pair_gauss, fwd.rec_gauss, fwd.rec_pixel,
-            fwd.pair_beg, fwd.pair_end, *workers, fwd.t_final,
+            m2d, con, col, opa, dep, bg, binning.offsets, binning.pair_gauss, binning.span, fwd.n_used,
+            fwd.pair_live, *workers, fwd.t_final, fwd.stop_slot,
             cotangent(grad_image, (height, width, n_dim)), cotangent(grad_alpha, (height, width)),
             cotangent(grad_depth, (height, width)),
         )  # fmt: skip
