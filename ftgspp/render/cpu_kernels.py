@@ -303,6 +303,19 @@ def _forward_step(t, dx, dy, nh_a, nh_c, cb, op):
     return w, t_new, stop, use
 
 
+@njit(inline="always", **_JIT)
+def _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot):
+    """``_forward_step`` on pixel ``p`` of the tile state: updates its transmittance, stop
+    record and depth; returns the weight and whether the Gaussian stopped or contributed."""
+    t = st[_F_T + p]
+    w, t_new, stop, use = _forward_step(t, st[_F_PX + p] - mx, st[_F_PY + p] - my, nh_a, nh_c, cb, op)
+    st[_F_T + p] = t_new
+    st[_F_TSTOP + p] = t if stop else st[_F_TSTOP + p]
+    st[_F_SLOT + p] = f_slot if stop else st[_F_SLOT + p]
+    st[_F_Z + p] += w * z if use else F0
+    return w, stop, use
+
+
 @njit(**_JIT)
 def _forward_tile(
     tile, means2d, conics, colors, opacities, depths, depth_keys, background, offsets, pair_gauss,
@@ -373,12 +386,7 @@ def _forward_tile(
             c1 = colors[g, 1]
             c2 = colors[g, 2]
             for p in range(lo, hi):  # branch-free: vectorised
-                t = st[_F_T + p]
-                w, t_new, stop, use = _forward_step(t, st[_F_PX + p] - mx, st[_F_PY + p] - my, nh_a, nh_c, cb, op)
-                st[_F_T + p] = t_new
-                st[_F_TSTOP + p] = t if stop else st[_F_TSTOP + p]
-                st[_F_SLOT + p] = f_slot if stop else st[_F_SLOT + p]
-                st[_F_Z + p] += w * z if use else F0
+                w, stop, use = _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot)
                 st[_F_ACC0 + p] += w * c0 if use else F0
                 st[_F_ACC1 + p] += w * c1 if use else F0
                 st[_F_ACC2 + p] += w * c2 if use else F0
@@ -386,12 +394,7 @@ def _forward_tile(
                 uses += np.int64(use)
         else:
             for p in range(lo, hi):  # branch-free: vectorised
-                t = st[_F_T + p]
-                w, t_new, stop, use = _forward_step(t, st[_F_PX + p] - mx, st[_F_PY + p] - my, nh_a, nh_c, cb, op)
-                st[_F_T + p] = t_new
-                st[_F_TSTOP + p] = t if stop else st[_F_TSTOP + p]
-                st[_F_SLOT + p] = f_slot if stop else st[_F_SLOT + p]
-                st[_F_Z + p] += w * z if use else F0
+                w, stop, use = _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot)
                 st[_F_W + p] = w
                 stops += np.int64(stop)
                 uses += np.int64(use)
