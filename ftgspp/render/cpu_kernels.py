@@ -8,11 +8,11 @@ power evaluated in the reference rasterizer's rounding order,
 1. ``bin_gaussians`` (serial, O(N + pairs)): each Gaussian with radius > 0 and opacity
    >= 1/255 is listed in every 16x16 tile of its radius box (tile ranges computed exactly as
    the contract says); the (tile, Gaussian) pairs are grouped by tile with a counting sort.
-   It also fills a per-Gaussian *span table*: the rows of the ellipse
+   It also fills a per-Gaussian *span table*: the row and column extent of the ellipse
    ``a dx^2 + 2 b dx dy + c dy^2 <= Lm`` that holds every pixel where ``alpha >= 1/255``
    can hold (``Lm = 2 ln(255 o)`` widened by a bound on float32 rounding). Rows outside it
-   are never visited; the per-pixel tests decide inside, so results are the same as
-   visiting every pixel of the tile.
+   are never visited, nor tiles whose columns it misses; the per-pixel tests decide
+   inside, so results are the same as visiting every pixel of the tile.
 2. ``balance_tiles``: tiles are dealt to one list per thread, largest estimated cost first
    (LPT), because Numba's ``prange`` splits its range statically.
 3. ``render_forward`` (parallel over the lists): sorts each tile's list by
@@ -66,8 +66,8 @@ SPAN_REL = 1e-6
 SPAN_ABS = 1e-4  # absolute slack on q (exp and multiply rounding, float32 1/255)
 SPAN_PX = 1e-3  # pixel slack on span end points
 # Columns of the span table.
-S_FULL, S_MY, S_YR = 0, 1, 2
-N_SPAN = 3
+S_FULL, S_MX, S_MY, S_XR, S_YR = 0, 1, 2, 3, 4
+N_SPAN = 5
 PAIR_COST = 2.0  # load-balancing cost of a (tile, Gaussian) pair, in 16-pixel rows
 
 # Columns of the per-pair gradient rows.
@@ -91,7 +91,7 @@ class Binning(NamedTuple):
 
     offsets: np.ndarray  # [n_tiles + 1] int64, each tile's range in pair_gauss
     pair_gauss: np.ndarray  # [P] int32, Gaussian of each (tile, Gaussian) pair, grouped by tile
-    span: np.ndarray  # [N, 3] float64, span table (columns S_*)
+    span: np.ndarray  # [N, 5] float64, span table (columns S_*)
     tile_cost: np.ndarray  # [n_tiles] float64, estimated work in 16-pixel rows (load balancing)
     rect: np.ndarray  # [N, 4] int64, tile range tx0, tx1, ty0, ty1 (empty when culled)
     gauss_off: np.ndarray  # [N + 1] int64, offsets of each Gaussian's pairs (raster tile order)
@@ -184,6 +184,7 @@ def bin_gaussians(
         c = np.float64(conics[k, 2])
         det = a * c - b * b
         span[k, S_FULL] = 1.0  # every tile row, unless the ellipse bound is safe
+        span[k, S_MX] = mx
         span[k, S_MY] = my
         cost[k] = PAIR_COST + TS
         if a > 0.0 and c > 0.0 and det > 0.0 and np.isfinite(det):
@@ -194,6 +195,7 @@ def bin_gaussians(
                 lm = (lim + SPAN_ABS) / shrink
                 span[k, S_FULL] = 0.0
                 span[k, S_YR] = math.sqrt(a * lm / det) + SPAN_PX
+                span[k, S_XR] = math.sqrt(c * lm / det) + SPAN_PX
                 cost[k] = PAIR_COST + min(TS, 2.0 * span[k, S_YR] + 1.0)
     offsets = np.zeros(n_tiles + 1, np.int64)
     gauss_off = np.zeros(n + 1, np.int64)  # CSR of each Gaussian's pairs, in tile order
@@ -268,6 +270,16 @@ def _row_range(span: np.ndarray, g: int, y0: int, y1: int):
     if r1 < r0:
         return 0, 0
     return np.int64(r0), np.int64(r1) + 1
+
+
+@njit(**_JIT)
+def _misses_columns(span: np.ndarray, g: int, x0: int, x1: int) -> bool:
+    """Whether Gaussian g's ellipse lies outside the columns [x0, x1) altogether."""
+    if span[g, S_FULL] != 0.0:
+        return False
+    mx = span[g, S_MX]
+    xr = span[g, S_XR]
+    return max(np.float64(x0), np.ceil(mx - xr)) > min(np.float64(x1 - 1), np.floor(mx + xr))
 
 
 # ------------------------------------------------------------------------------ forward
@@ -367,7 +379,7 @@ def _forward_tile(
             break
         g = pair_gauss[start + i]
         r0, r1 = _row_range(span, g, y0, y1)
-        if r1 <= r0:
+        if r1 <= r0 or _misses_columns(span, g, x0, x1):
             continue
         lo = np.uint64((r0 - y0) * TS)
         hi = np.uint64((r1 - y0) * TS)
@@ -436,7 +448,7 @@ def render_forward(
     background: np.ndarray,  # [D] float32
     offsets: np.ndarray,  # [n_tiles + 1] int64
     pair_gauss: np.ndarray,  # [P] int32, sorted in place per tile by (depth, index)
-    span: np.ndarray,  # [N, 3] float64
+    span: np.ndarray,  # [N, 5] float64
     rect: np.ndarray,  # [N, 4] int64
     gauss_off: np.ndarray,  # [N + 1] int64
     worker_offsets: np.ndarray,  # [W + 1] int64
@@ -670,7 +682,7 @@ def render_backward(
     background: np.ndarray,  # [D] float32
     offsets: np.ndarray,  # [n_tiles + 1] int64
     pair_gauss: np.ndarray,  # [P] int32, as sorted by render_forward
-    span: np.ndarray,  # [N, 3] float64
+    span: np.ndarray,  # [N, 5] float64
     n_used: np.ndarray,  # [n_tiles] int64, from render_forward
     pair_live: np.ndarray,  # [P] uint8, from render_forward
     worker_offsets: np.ndarray,  # [W + 1] int64
