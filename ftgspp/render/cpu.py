@@ -79,6 +79,10 @@ def _forward(
 ) -> tuple[_k.Binning, _k.Forward]:
     """Bin, balance and composite (float32 numpy in, kernel outputs out)."""
     binning = _k.bin_gaussians(m2d, con, opa, rad, width, height)
+    if len(binning.offsets) > 1 and np.diff(binning.offsets).max() >= _k.MAX_TILE_LIST:
+        raise ValueError(
+            f"more than {_k.MAX_TILE_LIST} Gaussians overlap one 16x16 tile; the cpu backend cannot render that"
+        )
     workers = _k.balance_tiles(binning.tile_cost, numba.get_num_threads())
     fwd = _k.render_forward(
         m2d, con, col, opa, dep, depth_sort_keys(dep), bg, binning.offsets, binning.pair_gauss, binning.span,

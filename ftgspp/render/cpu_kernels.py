@@ -69,6 +69,7 @@ SPAN_PX = 1e-3  # pixel slack on span end points
 S_FULL, S_MX, S_MY, S_XR, S_YR = 0, 1, 2, 3, 4
 N_SPAN = 5
 PAIR_COST = 2.0  # load-balancing cost of a (tile, Gaussian) pair, in 16-pixel rows
+MAX_TILE_LIST = 1 << 24  # Gaussians per tile: slots are kept in float32 tile state
 
 # Columns of the per-pair gradient rows.
 G_MX, G_MY, G_A, G_B, G_C, G_O, G_Z, G_COL = 0, 1, 2, 3, 4, 5, 6, 7
@@ -289,7 +290,7 @@ def _misses_columns(span: np.ndarray, g: int, x0: int, x1: int) -> bool:
 # loops without runtime checks. Pixel p = row * TS + column.
 _F_T = np.uint64(0 * NP)  # transmittance; 0 marks a stopped pixel (outside the image: from the start)
 _F_TSTOP = np.uint64(1 * NP)  # transmittance of a stopped pixel
-_F_SLOT = np.uint64(2 * NP)  # slot of the Gaussian that stopped it, else the list length
+_F_SLOT = np.uint64(2 * NP)  # slot of the Gaussian that stopped it, else the list length (exact: < MAX_TILE_LIST)
 _F_W = np.uint64(3 * NP)  # weight alpha T of the Gaussian being composited (0: none)
 _F_Z = np.uint64(4 * NP)  # accumulated depth
 _F_PX = np.uint64(5 * NP)  # pixel coordinates

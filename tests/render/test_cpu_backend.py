@@ -352,3 +352,11 @@ def test_editing_an_input_before_backward_raises() -> None:
         means2d.add_(1.0)
     with pytest.raises(RuntimeError, match="inplace"):
         image.sum().backward()
+
+
+def test_too_many_gaussians_on_one_tile_is_an_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Stop slots live in float32 tile state; a tile list that long is refused, not mis-rendered."""
+    scene = make_scene(10)
+    monkeypatch.setattr(cpu._k, "MAX_TILE_LIST", 8)  # any real scene has a tile with more
+    with pytest.raises(ValueError, match="overlap one 16x16 tile"):
+        run(cpu.rasterize, scene)
