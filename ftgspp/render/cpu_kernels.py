@@ -523,15 +523,25 @@ def _backward_step(t_after, rest, dx, dy, dot, before_stop, nh_a, nh_c, cb, op):
 
 
 @njit(inline="always", **_JIT)
-def _add_terms(lanes, j, d_power, dx, dy, d_opacity, gz_w):
-    """Add one pixel's moment terms to column ``j`` of the per-column sums."""
+def _backward_pixel(st, lanes, p, j, gz, dot, mx, my, nh_a, nh_c, cb, op, f_slot):
+    """``_backward_step`` on pixel ``p`` (column ``j``) of the tile state: updates its
+    transmittance and rest, adds its moment terms to column ``j`` of the per-column sums;
+    returns whether the Gaussian contributed there and its weight."""
+    dx = st[_B_PX + p] - mx
+    dy = st[_B_PY + p] - my
+    live, w, t_new, rest_new, d_power, d_opacity = _backward_step(
+        st[_B_T + p], st[_B_REST + p], dx, dy, dot, f_slot < st[_B_SLOT + p], nh_a, nh_c, cb, op
+    )
+    st[_B_T + p] = t_new
+    st[_B_REST + p] = rest_new
     lanes[_L[0] + j] += d_power * dx
     lanes[_L[1] + j] += d_power * dy
     lanes[_L[2] + j] += d_power * dx * dx
     lanes[_L[3] + j] += d_power * dx * dy
     lanes[_L[4] + j] += d_power * dy * dy
     lanes[_L[5] + j] += d_opacity
-    lanes[_L[6] + j] += gz_w
+    lanes[_L[6] + j] += gz * w if live else F0
+    return live, w
 
 
 @njit(**_JIT)
@@ -608,19 +618,12 @@ def _backward_tile(
             for q in range(lo, hi, np.uint64(TS)):
                 for j in range(np.uint64(TS)):  # branch-free: vectorised
                     p = q + j
-                    dx = st[_B_PX + p] - mx
-                    dy = st[_B_PY + p] - my
                     gz = st[_B_GZ + p]
                     g0 = st[_B_G0 + p]
                     g1 = st[_B_G1 + p]
                     g2 = st[_B_G2 + p]
                     dot = gz * z + (g0 * c0 + g1 * c1 + g2 * c2)
-                    live, w, t_new, rest_new, d_power, d_opacity = _backward_step(
-                        st[_B_T + p], st[_B_REST + p], dx, dy, dot, f_slot < st[_B_SLOT + p], nh_a, nh_c, cb, op
-                    )
-                    st[_B_T + p] = t_new
-                    st[_B_REST + p] = rest_new
-                    _add_terms(lanes, j, d_power, dx, dy, d_opacity, gz * w if live else F0)
+                    live, w = _backward_pixel(st, lanes, p, j, gz, dot, mx, my, nh_a, nh_c, cb, op, f_slot)
                     lanes[_L[7] + j] += g0 * w if live else F0
                     lanes[_L[8] + j] += g1 * w if live else F0
                     lanes[_L[9] + j] += g2 * w if live else F0
@@ -635,17 +638,10 @@ def _backward_tile(
             for q in range(lo, hi, np.uint64(TS)):
                 for j in range(np.uint64(TS)):  # branch-free: vectorised
                     p = q + j
-                    dx = st[_B_PX + p] - mx
-                    dy = st[_B_PY + p] - my
                     gz = st[_B_GZ + p]
-                    live, w, t_new, rest_new, d_power, d_opacity = _backward_step(
-                        st[_B_T + p], st[_B_REST + p], dx, dy, gz * z + st[_B_DOT + p], f_slot < st[_B_SLOT + p],
-                        nh_a, nh_c, cb, op,
-                    )  # fmt: skip
-                    st[_B_T + p] = t_new
-                    st[_B_REST + p] = rest_new
+                    dot = gz * z + st[_B_DOT + p]
+                    live, w = _backward_pixel(st, lanes, p, j, gz, dot, mx, my, nh_a, nh_c, cb, op, f_slot)
                     st[_B_DOT + p] = w if live else F0
-                    _add_terms(lanes, j, d_power, dx, dy, d_opacity, gz * w if live else F0)
                 for ch in range(n_dim):
                     gch = np.uint64((_B_G + ch) * NP)
                     lane = np.uint64((N_TERMS + ch) * TS)
