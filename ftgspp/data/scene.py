@@ -7,6 +7,8 @@ decoded lazily, once per camera, and cached on disk as ``.npy`` arrays (uint8,
 
 from __future__ import annotations
 
+import os
+import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
@@ -111,9 +113,22 @@ class Scene:
         path = Path(self.cache_dir) / key
         if path.exists():
             return np.load(path, mmap_mode="r")
-        arr = np.ascontiguousarray(self.decode(cam), dtype=np.uint8)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npy")
-        np.save(tmp, arr)
-        tmp.replace(path)  # atomic: concurrent runs never read half a file
+        save_npy_atomic(path, np.ascontiguousarray(self.decode(cam), dtype=np.uint8))
         return np.load(path, mmap_mode="r")
+
+
+def save_npy_atomic(path: Path, arr: np.ndarray) -> None:
+    """Write ``arr`` to ``path`` (.npy) so that a concurrent reader never sees half a file.
+
+    Each writer uses its own temporary file in the same folder, then renames it over
+    ``path``: runs that fill the same cache at the same time each install a whole file.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.save(f, arr)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

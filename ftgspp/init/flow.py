@@ -40,7 +40,7 @@ from typing import Callable, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from ftgspp.data.scene import Scene
+from ftgspp.data.scene import Scene, save_npy_atomic
 from ftgspp.errors import InputError
 
 log = logging.getLogger("ftgspp.init.flow")
@@ -224,10 +224,7 @@ def keyframe_flows(
             compute_s += time.perf_counter() - t0
             n_computed += 1
             if use_cache:
-                folder.mkdir(parents=True, exist_ok=True)
-                tmp = path.with_suffix(".tmp.npy")
-                np.save(tmp, pair)
-                tmp.replace(path)  # atomic: a concurrent run never reads half a file
+                save_npy_atomic(path, pair)
         out.forward[cam], out.backward[cam] = pair[0], pair[1]
     out.timings = {"compute_s": compute_s, "load_s": load_s, "n_computed": float(n_computed),
                    "n_cached": float(n_cached)}  # fmt: skip

@@ -239,6 +239,28 @@ def test_frames_cached_once_and_reused(tmp_path, layout):
     assert files[0].stat().st_mtime_ns == mtime and len(list(scene.cache_dir.glob("*.npy"))) == 1
 
 
+def test_concurrent_cache_writers_each_install_a_whole_file(tmp_path, monkeypatch):
+    """Two runs fill the same frame cache at once: the second writes its file while the
+    first is about to rename its own. Both read whole arrays (with one shared temporary
+    name, the second truncated the first's file and a run died reading it)."""
+    root = _write("dynerf", tmp_path / "s", n_frames=3)
+    first, second = _load(root), _load(root)
+    expected = np.array(_load(root).decode(1))
+    real_replace = os.replace
+    rival_ran = []
+
+    def replace_after_rival(src, dst):
+        if not rival_ran:
+            rival_ran.append(True)
+            np.testing.assert_array_equal(second.frames(1), expected)
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace_after_rival)
+    np.testing.assert_array_equal(first.frames(1), expected)
+    assert rival_ran and len(list(first.cache_dir.glob("*.npy"))) == 1
+    assert not list(first.cache_dir.glob("*.tmp"))  # no temporary file left behind
+
+
 def test_cache_dir_option_and_stale_cache(tmp_path):
     a = fx.write_dynerf(tmp_path / "a" / "scene", n_frames=2)
     b = fx.write_dynerf(tmp_path / "b" / "scene", fx.ring_cameras(["cam00", "cam01"]), n_frames=2)
