@@ -255,7 +255,7 @@ def time_yardstick(inputs: dict[str, Any], cotangents: tuple[Tensor, ...]) -> tu
 
 _COMPILE_SNIPPET = """
 import time, torch
-from ftgspp.bench import _stage_model, random_scene
+from ftgspp.bench import _stage_model, project_scene, random_scene, time_backend
 from ftgspp.metrics import ssim_same
 from ftgspp.render import cpu
 from ftgspp.render.prepare import prepare
@@ -269,14 +269,24 @@ sum(o.sum() for o in out).backward()
 p = prepare(model.params, 0.5, scene["viewmat"], scene["K"], torch.zeros(3), 32, 24, 3, 1.0, True, 20.0)
 (p.means2d.sum() + p.colors.sum()).backward()
 (1 - ssim_same(torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3))).backward()
-print(time.perf_counter() - t0)
+first_call = time.perf_counter() - t0
+inputs = project_scene(random_scene(5000, 128, 96))
+cot = tuple(torch.randn(96, 128, k) for k in (3, 1, 1))
+raster_ms = sorted([time_backend(cpu.rasterize, inputs, cot)[1] for _ in range(20)][5:])[7]  # 5 warm-up calls
+print(first_call, raster_ms)
 """
+
+
+COMPILE_KEYS = ("cold", "cached", "cold_raster_ms", "cached_raster_ms")
 
 
 def numba_compile_seconds() -> dict[str, float | None]:
     """First-call time of the cpu kernels (rasterizer, fused prepare node, SSIM loss): cold
-    (empty Numba cache) and cached, in seconds."""
-    result: dict[str, float | None] = {"cold": None, "cached": None}
+    (empty Numba cache) and cached, in seconds; and the rasterizer's forward + backward at
+    5k / 128x96 (median ms) in each of the two processes, ``cold_raster_ms`` and
+    ``cached_raster_ms``: a process that compiled the kernels must run them as fast as one
+    that loaded them (it once ran them 6-10x slower; see ``cpu_kernels._forward_tile``)."""
+    result: dict[str, float | None] = dict.fromkeys(COMPILE_KEYS)
     with tempfile.TemporaryDirectory(prefix="ftgspp-numba-") as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
         for key in ("cold", "cached"):
@@ -284,7 +294,8 @@ def numba_compile_seconds() -> dict[str, float | None]:
             if proc.returncode != 0:
                 print(f"warning: compile-time probe failed: {proc.stderr.strip()[-300:]}", file=sys.stderr)
                 break
-            result[key] = float(proc.stdout.strip().splitlines()[-1])
+            first_call, raster_ms = proc.stdout.strip().splitlines()[-1].split()
+            result[key], result[f"{key}_raster_ms"] = float(first_call), float(raster_ms)
     return result
 
 
@@ -440,7 +451,7 @@ def bench_render(
         result["numba_threading_layer"] = cpu.threading_layer()
         result["numba_threads"] = __import__("numba").get_num_threads()
         result["stages"] = time_stages(random_scene(n, width, height, seed), repeats, seed)
-    result["numba_compile_s"] = numba_compile_seconds() if compile_times else {"cold": None, "cached": None}
+    result["numba_compile_s"] = numba_compile_seconds() if compile_times else dict.fromkeys(COMPILE_KEYS)
     return result
 
 
@@ -471,6 +482,10 @@ def format_render_table(result: dict[str, Any]) -> str:
     compile_s = result["numba_compile_s"]
     if compile_s.get("cold") is not None:
         lines.append(f"numba compile: cold {compile_s['cold']:.1f} s, cached {compile_s['cached']:.2f} s")
+    if compile_s.get("cached_raster_ms") is not None:
+        cold, cached = compile_s["cold_raster_ms"], compile_s["cached_raster_ms"]
+        lines.append(f"cpu fwd+bwd at 5k/128x96 in the process that compiled the kernels {cold:.2f} ms, "
+                     f"in one that loaded them {cached:.2f} ms ({cold / cached:.2f}x)")
     if "numba_threading_layer" in result:
         lines.append(f"numba: {result['numba_threads']} threads, layer {result['numba_threading_layer']}")
     if result["load_average"][0] > 0.5 * (result["cpu_count"] or 1):

@@ -16,9 +16,10 @@ PyTorch at one thread (``numba.set_num_threads`` does not). Like PyTorch's own O
 parallelism it is not fork-safe: a process forked after parallel work hangs or aborts in its
 next parallel region, so start worker processes with ``spawn`` (or as subprocesses).
 
-Compilation: the kernels compile on first use (about 20 s on a 2-core machine) and are
+Compilation: the kernels compile on first use (about 25 s on a 2-core machine) and are
 cached on disk (``NUMBA_CACHE_DIR``, else ``__pycache__`` next to the module); later
-processes load them in under a second.
+processes load them in under a second and run the same code (``_TILE_JIT`` in
+``cpu_kernels``).
 """
 
 from __future__ import annotations

@@ -75,6 +75,13 @@ MAX_TILE_LIST = 1 << 24  # Gaussians per tile: slots are kept in float32 tile st
 G_MX, G_MY, G_A, G_B, G_C, G_O, G_Z, G_COL = 0, 1, 2, 3, 4, 5, 6, 7
 
 _JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
+# The per-tile kernels are inlined into their parallel kernels (``_TILE_JIT``), never compiled
+# on their own. A separately compiled ``_forward_tile`` got one optimisation round where the
+# copy linked into ``render_forward`` gets two, and in the process that compiled both, the
+# JIT linker bound ``render_forward``'s call to the standalone copy (the first definition of
+# the symbol): that process ran the rasterizer 6-10x slower than any process that loaded the
+# kernels from the cache (``ftgspp bench render`` reports both).
+_TILE_JIT = dict(inline="always", **_JIT)
 
 # exp on [-8, 0]: Cephes' expf polynomial after power = n ln2 + r, |r| <= ln2 / 2.
 _LOG2E = np.float32(1.44269504088896341)
@@ -329,7 +336,7 @@ def _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot):
     return w, stop, use
 
 
-@njit(**_JIT)
+@njit(**_TILE_JIT)
 def _forward_tile(
     tile, means2d, conics, colors, opacities, depths, depth_keys, background, offsets, pair_gauss,
     span, rect, gauss_off, gauss_pairs, n_used, pair_live, image, alpha_out, depth_out, t_final, stop_slot,
@@ -544,7 +551,7 @@ def _backward_pixel(st, lanes, p, j, gz, dot, mx, my, nh_a, nh_c, cb, op, f_slot
     return live, w
 
 
-@njit(**_JIT)
+@njit(**_TILE_JIT)
 def _backward_tile(
     tile, means2d, conics, colors, opacities, depths, background, offsets, pair_gauss, span, n_used,
     pair_live, t_final, stop_slot, grad_image, grad_alpha, grad_depth, pair_grads, bg_grads,

@@ -335,7 +335,7 @@ def test_bench_render_prints_one_json_line(capsys: pytest.CaptureFixture[str]) -
     for name, t in result["backends"].items():
         assert t["fwd_ms"] > 0 and t["fwd_bwd_ms"] > 0 and result["ratios"][name]["fwd_bwd"] > 0
     assert (result["n"], result["width"], result["height"]) == (200, 40, 30)
-    assert set(result["numba_compile_s"]) == {"cold", "cached"}
+    assert set(result["numba_compile_s"]) == {"cold", "cached", "cold_raster_ms", "cached_raster_ms"}
     stages = result["stages"]  # the other stages of a cpu render, each against what it replaces
     assert set(stages["prepare"]) == {"autograd_ms", "fused_ms"} and set(stages["ssim_loss"]) == {"conv2d_ms", "numba_ms"}
     assert all(t > 0 for stage in stages.values() for t in stage.values())
@@ -360,3 +360,43 @@ def test_too_many_gaussians_on_one_tile_is_an_error(monkeypatch: pytest.MonkeyPa
     monkeypatch.setattr(cpu._k, "MAX_TILE_LIST", 8)  # any real scene has a tile with more
     with pytest.raises(ValueError, match="overlap one 16x16 tile"):
         run(cpu.rasterize, scene)
+
+
+_COMPILE_OR_LOAD = """
+import hashlib, json, torch
+from ftgspp.bench import project_scene, random_scene
+from ftgspp.render import cpu
+from ftgspp.render import cpu_kernels as k
+inputs = project_scene(random_scene(300, 64, 48, seed=5))
+leaves = [inputs[n].clone().requires_grad_(True) for n in ("means2d", "conics", "colors", "opacities", "depths")]
+outs = cpu.rasterize(*leaves, inputs["radii"], 64, 48, inputs["background"])
+g = torch.Generator().manual_seed(6)
+torch.autograd.backward(outs, [torch.randn(o.shape, generator=g) for o in outs])
+digest = hashlib.sha256()
+for t in (*outs, *(leaf.grad for leaf in leaves)):
+    digest.update(t.detach().numpy().tobytes())
+standalone = {name: len(getattr(k, name).signatures) for name in ("_forward_tile", "_backward_tile")}
+print(json.dumps({"sha": digest.hexdigest(), "standalone": standalone}))
+"""
+
+
+@pytest.mark.slow
+def test_the_process_that_compiles_the_kernels_runs_the_same_code_as_one_that_loads_them(tmp_path) -> None:
+    """In a process that compiled them, the JIT linker bound the parallel kernels' calls to a
+    standalone copy of the per-tile kernels (optimised less; the rasterizer ran 6-10x slower
+    there than in processes that loaded the cache). The tile kernels must exist only inlined
+    into their parallel kernels, and both kinds of process must give the same bits."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))  # empty: the first process compiles
+    runs = []
+    for _ in range(2):  # compile, then load from the cache
+        proc = subprocess.run([sys.executable, "-c", _COMPILE_OR_LOAD], env=env, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    compiled, loaded = runs
+    assert compiled["standalone"] == {"_forward_tile": 0, "_backward_tile": 0}
+    assert compiled["sha"] == loaded["sha"]
