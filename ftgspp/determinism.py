@@ -14,8 +14,13 @@ Two modes (``TrainConfig.determinism``):
   library starts (``portable_environment``), torch runs on a fixed number of threads,
   oneDNN is off, OpenCV on one thread. The same config then gives the same bits on any
   x86-64 machine with the same package versions, whatever its ISA or core count. The
-  project's Numba kernels need nothing: they are compiled without fast-math and reduce in
-  a fixed order whatever the thread count.
+  project's Numba kernels need no pin and are compiled for the host's ISA: without
+  fast-math, LLVM neither fuses multiply-adds nor reorders floating-point sums, their
+  vectorised loops run each lane's IEEE operations unchanged, they call no vector maths
+  library (SVML stays off) and they reduce in a fixed order whatever the thread count.
+  (Pinning them to the baseline, ``NUMBA_CPU_NAME=generic``, gave the same bits but a 10x
+  slower rasterizer: without AVX LLVM declines to vectorise its pixel loops.)
+  ``tests/test_determinism.py`` checks this with kernels compiled for the baseline.
 
 Environment variables are read when the libraries load, so the portable environment must
 exist before Python imports torch: ``ftgspp train determinism=portable`` re-executes itself
@@ -44,7 +49,6 @@ PORTABLE_FIXED = {
     "ATEN_CPU_CAPABILITY": "default",  # torch: no AVX2/AVX-512 kernels
     "ONEDNN_MAX_CPU_ISA": "SSE41",  # oneDNN (also switched off at run time)
     "MKL_CBWR": "COMPATIBLE",  # MKL: conditional numerical reproducibility, baseline code path
-    "NUMBA_CPU_NAME": "generic",  # Numba: no host-specific instruction selection
     "NUMBA_DISABLE_INTEL_SVML": "1",  # Numba: no ISA-specific vector math library
     "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX512F,-AVX512VL,-AVX2,-FMA,-FMA4,-AVX",  # libm: no FMA variants
 }

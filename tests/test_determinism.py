@@ -20,13 +20,15 @@ from test_trainer import params
 from ftgspp.determinism import determinism_domain, isa_class, portable_environment, requested_mode
 
 # Outer environments that mimic other machines: torch kernel dispatch, oneDNN ISA caps, no
-# AVX-512/AVX2 in NumPy and OpenCV, thread counts.
+# AVX-512/AVX2 in NumPy and OpenCV, thread counts, Numba kernels compiled for the baseline ISA.
 MACHINES = {
     "native": {},
     "baseline": {"ATEN_CPU_CAPABILITY": "default"},
     "no_avx512": {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL", "OPENCV_CPU_DISABLE": "AVX512-SKX",
                   "ATEN_CPU_CAPABILITY": "avx2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
     "one_thread": {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"},
+    # Numba kernels compiled for the x86-64 baseline (SSE2, no AVX) instead of this host's ISA
+    "sse2_numba": {"NUMBA_CPU_NAME": "generic"},
 }
 TIMING = {"train_seconds", "iters_per_second", "peak_rss_mb"}
 
