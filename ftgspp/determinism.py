@@ -18,7 +18,7 @@ Two modes (``TrainConfig.determinism``):
   fast-math, LLVM neither fuses multiply-adds nor reorders floating-point sums, their
   vectorised loops run each lane's IEEE operations unchanged, they call no vector maths
   library (SVML stays off) and they reduce in a fixed order whatever the thread count.
-  (Pinning them to the baseline, ``NUMBA_CPU_NAME=generic``, gave the same bits but a 10x
+  (Pinning them to the baseline, ``NUMBA_CPU_NAME=generic``, gave the same bits but a 7x
   slower rasterizer: without AVX LLVM declines to vectorise its pixel loops.)
   ``tests/test_determinism.py`` checks this with kernels compiled for the baseline.
 
