@@ -285,7 +285,7 @@ def numba_compile_seconds() -> dict[str, float | None]:
     (empty Numba cache) and cached, in seconds; and the rasterizer's forward + backward at
     5k / 128x96 (median ms) in each of the two processes, ``cold_raster_ms`` and
     ``cached_raster_ms``: a process that compiled the kernels must run them as fast as one
-    that loaded them (it once ran them 6-10x slower; see ``cpu_kernels._forward_tile``)."""
+    that loaded them (it once ran them 5-6x slower; see ``cpu_kernels._TILE_JIT``)."""
     result: dict[str, float | None] = dict.fromkeys(COMPILE_KEYS)
     with tempfile.TemporaryDirectory(prefix="ftgspp-numba-") as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
@@ -480,9 +480,9 @@ def format_render_table(result: dict[str, Any]) -> str:
         lines.append(f"SSIM loss, fwd+bwd: conv2d {t['conv2d_ms']:.2f} ms, numba {t['numba_ms']:.2f} ms "
                      f"({t['conv2d_ms'] / t['numba_ms']:.1f}x)")
     compile_s = result["numba_compile_s"]
-    if compile_s.get("cold") is not None:
+    if compile_s.get("cold") is not None and compile_s.get("cached") is not None:
         lines.append(f"numba compile: cold {compile_s['cold']:.1f} s, cached {compile_s['cached']:.2f} s")
-    if compile_s.get("cached_raster_ms") is not None:
+    if compile_s.get("cold_raster_ms") is not None and compile_s.get("cached_raster_ms") is not None:
         cold, cached = compile_s["cold_raster_ms"], compile_s["cached_raster_ms"]
         lines.append(f"cpu fwd+bwd at 5k/128x96 in the process that compiled the kernels {cold:.2f} ms, "
                      f"in one that loaded them {cached:.2f} ms ({cold / cached:.2f}x)")

@@ -10,16 +10,18 @@ Two modes (``TrainConfig.determinism``):
 
 - ``default``: fastest; bits are those of this machine's *domain* (CPU model and ISA
   class, torch capability, oneDNN/MKL settings, thread counts, package versions).
-- ``portable``: every ISA-dependent path is pinned to the x86-64 baseline before any
-  library starts (``portable_environment``), torch runs on a fixed number of threads,
-  oneDNN is off, OpenCV on one thread. The same config then gives the same bits on any
-  x86-64 machine with the same package versions, whatever its ISA or core count. The
-  project's Numba kernels need no pin and are compiled for the host's ISA: without
-  fast-math, LLVM neither fuses multiply-adds nor reorders floating-point sums, their
-  vectorised loops run each lane's IEEE operations unchanged, they call no vector maths
-  library (SVML stays off) and they reduce in a fixed order whatever the thread count.
-  (Pinning them to the baseline, ``NUMBA_CPU_NAME=generic``, gave the same bits but a 7x
-  slower rasterizer: without AVX LLVM declines to vectorise its pixel loops.)
+- ``portable``: every ISA-dependent library path (torch, oneDNN, MKL, NumPy, OpenCV, glibc's
+  libm) is pinned to the x86-64 baseline before any library starts
+  (``portable_environment``), torch runs on a fixed number of threads, oneDNN is off,
+  OpenCV on one thread. The same config then gives the same bits on any x86-64 machine with
+  the same package versions, whatever its ISA or core count. The project's Numba kernels
+  are not pinned to a target and compile for the host's ISA. Their bits do not depend on
+  it: without fast-math LLVM neither fuses multiply-adds, uses approximate reciprocals nor
+  reorders floating-point sums, so vectorised loops run each lane's IEEE operations
+  unchanged; the libm functions they call (``exp``, ``log``) are pinned through glibc's
+  hwcaps tunable; SVML stays off; and they reduce in a fixed order whatever the thread
+  count. (Pinning them to the baseline, ``NUMBA_CPU_NAME=generic``, gave the same bits but
+  a 7x slower rasterizer: without AVX, LLVM declines to vectorise its pixel loops.)
   ``tests/test_determinism.py`` checks this with kernels compiled for the baseline.
 
 Environment variables are read when the libraries load, so the portable environment must

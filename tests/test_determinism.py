@@ -81,6 +81,8 @@ def test_portable_environment_pins_every_dispatching_library():
     assert env["ATEN_CPU_CAPABILITY"] == "default" and env["MKL_CBWR"] == "COMPATIBLE"
     assert env["FTGSPP_DETERMINISM"] == "portable" and env["PATH"] == "/bin"
     assert "X86_V4" in env["NPY_DISABLE_CPU_FEATURES"] and "AVX2" in env["OPENCV_CPU_DISABLE"]
+    assert "-FMA" in env["GLIBC_TUNABLES"] and env["NUMBA_DISABLE_INTEL_SVML"] == "1"  # libm the kernels call
+    assert "NUMBA_CPU_NAME" not in env  # Numba stays on the host ISA (7x faster rasterizer, same bits)
 
 
 def test_domain_records_what_the_bits_depend_on():

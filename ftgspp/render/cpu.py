@@ -18,8 +18,8 @@ next parallel region, so start worker processes with ``spawn`` (or as subprocess
 
 Compilation: the kernels compile on first use (about 25 s on a 2-core machine) and are
 cached on disk (``NUMBA_CACHE_DIR``, else ``__pycache__`` next to the module); later
-processes load them in under a second and run the same code (``_TILE_JIT`` in
-``cpu_kernels``).
+processes load them in under a second. The process that compiled the rasterizer runs it as
+fast as one that loaded it (``_TILE_JIT`` in ``cpu_kernels``).
 """
 
 from __future__ import annotations

@@ -76,11 +76,12 @@ G_MX, G_MY, G_A, G_B, G_C, G_O, G_Z, G_COL = 0, 1, 2, 3, 4, 5, 6, 7
 
 _JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
 # The per-tile kernels are inlined into their parallel kernels (``_TILE_JIT``), never compiled
-# on their own. A separately compiled ``_forward_tile`` got one optimisation round where the
-# copy linked into ``render_forward`` gets two, and in the process that compiled both, the
-# JIT linker bound ``render_forward``'s call to the standalone copy (the first definition of
-# the symbol): that process ran the rasterizer 6-10x slower than any process that loaded the
-# kernels from the cache (``ftgspp bench render`` reports both).
+# on their own. As ordinary callees, Numba compiled them twice: standalone, and as a copy
+# linked into ``render_forward`` / ``render_backward``. A process loading the cache runs the
+# linked copy. In the process that compiled them, the JIT linker bound the call to the
+# standalone copy (the first definition of the symbol), whose machine code was much slower
+# (why inside LLVM was not isolated): that process ran the rasterizer 5-6x slower, forward
+# plus backward (``ftgspp bench render`` times both kinds of process).
 _TILE_JIT = dict(inline="always", **_JIT)
 
 # exp on [-8, 0]: Cephes' expf polynomial after power = n ln2 + r, |r| <= ln2 / 2.

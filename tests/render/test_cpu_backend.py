@@ -376,14 +376,15 @@ digest = hashlib.sha256()
 for t in (*outs, *(leaf.grad for leaf in leaves)):
     digest.update(t.detach().numpy().tobytes())
 standalone = {name: len(getattr(k, name).signatures) for name in ("_forward_tile", "_backward_tile")}
-print(json.dumps({"sha": digest.hexdigest(), "standalone": standalone}))
+hits = sum(sum(getattr(k, name).stats.cache_hits.values()) for name in ("render_forward", "render_backward"))
+print(json.dumps({"sha": digest.hexdigest(), "standalone": standalone, "cache_hits": hits}))
 """
 
 
 @pytest.mark.slow
 def test_the_process_that_compiles_the_kernels_runs_the_same_code_as_one_that_loads_them(tmp_path) -> None:
     """In a process that compiled them, the JIT linker bound the parallel kernels' calls to a
-    standalone copy of the per-tile kernels (optimised less; the rasterizer ran 6-10x slower
+    standalone copy of the per-tile kernels (slower code; the rasterizer ran 5-6x slower
     there than in processes that loaded the cache). The tile kernels must exist only inlined
     into their parallel kernels, and both kinds of process must give the same bits."""
     import json
@@ -398,5 +399,26 @@ def test_the_process_that_compiles_the_kernels_runs_the_same_code_as_one_that_lo
         assert proc.returncode == 0, proc.stderr[-2000:]
         runs.append(json.loads(proc.stdout.strip().splitlines()[-1]))
     compiled, loaded = runs
+    assert (compiled["cache_hits"], loaded["cache_hits"]) == (0, 2)  # compiled, then loaded
     assert compiled["standalone"] == {"_forward_tile": 0, "_backward_tile": 0}
     assert compiled["sha"] == loaded["sha"]
+
+
+def test_bench_render_reports_the_compile_probe(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The probe's two subprocesses (cold, cached) each print first-call seconds and raster ms."""
+    import subprocess
+
+    from ftgspp import bench
+
+    outputs = iter(["numba noise\n21.5 4.25\n", "0.5 4.0\n"])
+    monkeypatch.setattr(bench.subprocess, "run",
+                        lambda argv, **kw: subprocess.CompletedProcess(argv, 0, stdout=next(outputs), stderr=""))
+    probe = bench.numba_compile_seconds()
+    assert probe == {"cold": 21.5, "cached": 0.5, "cold_raster_ms": 4.25, "cached_raster_ms": 4.0}
+    result = {"n": 10, "n_visible": 10, "width": 32, "height": 24, "repeats": 1, "ratios": {}, "yardstick": None,
+              "backends": {"cpu": {"fwd_ms": 1.0, "fwd_bwd_ms": 2.0}}, "numba_compile_s": probe,
+              "load_average": [0.0, 0.0], "cpu_count": 2}  # fmt: skip
+    table = bench.format_render_table(result)
+    assert "cold 21.5 s, cached 0.50 s" in table and "4.25 ms" in table and "(1.06x)" in table
+    failed = dict(probe, cached=None, cached_raster_ms=None)  # the cached probe failed: no line, no crash
+    assert "numba compile" not in bench.format_render_table(dict(result, numba_compile_s=failed))
