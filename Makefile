@@ -49,7 +49,7 @@ JOBS ?=
 SECONDS_PER_RUN ?= 40
 
 reports: install weights
-	$(PY) -m harness.reports_plan --seconds-per-run $(SECONDS_PER_RUN) --jobs $(or $(JOBS),2) --todo .reports-todo
+	$(PY) -m harness.cli.reports_plan --seconds-per-run $(SECONDS_PER_RUN) --jobs $(or $(JOBS),2) --todo .reports-todo
 	@set -e; for s in $$(cat .reports-todo); do case " $(STUDIES) " in *" $$s "*) \
 	  $(VENV)/bin/study run $$s --profile quick $(if $(JOBS),--jobs $(JOBS));; esac; done
 	$(VENV)/bin/study report --all --profile quick --if-changed

@@ -39,7 +39,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ftgspp.render import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
+from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
 
 Rasterize = Callable[..., "tuple[Tensor, Tensor, Tensor]"]
 

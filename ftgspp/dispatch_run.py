@@ -27,7 +27,7 @@ from typing import Callable
 from ftgspp.config import TrainConfig, train_config_from_dict
 from ftgspp.determinism import MARKER, PORTABLE_FIXED, portable_environment
 from ftgspp.errors import InputError
-from ftgspp.tracking import RunResult, Tracker
+from ftgspp.tracker import RunResult, Tracker
 
 DISPATCHES = {"native": None, "avx512": "avx512", "avx2": "avx2", "baseline": "default"}
 CHILD = "FTGSPP_RUN_CHILD"  # set in a child, so a mismatch there is an error, not another child

@@ -37,7 +37,7 @@ from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
 from ftgspp.train_state import TrainState, set_learning_rates
-from ftgspp.tracking import NullTracker, RunResult, Tracker
+from ftgspp.tracker import NullTracker, RunResult, Tracker
 from ftgspp.view import render_view
 
 log = logging.getLogger("ftgspp.train")

@@ -36,7 +36,7 @@ TIMING = {"train_seconds", "iters_per_second", "peak_rss_mb"}
 def train_in(env_extra: dict[str, str], mode: str, scene: Path, out: Path) -> tuple[dict, dict, dict]:
     env = {k: v for k, v in os.environ.items() if k not in {"FTGSPP_DETERMINISM"}}
     env.update(env_extra)
-    r = subprocess.run([sys.executable, "-m", "harness.ftgspp_cmd", "train", "profile=smoke", f"data.path={scene}",
+    r = subprocess.run([sys.executable, "-m", "harness.cli.ftgspp_cmd", "train", "profile=smoke", f"data.path={scene}",
                         "progress=false", "init.keyframe_stride=3", "diagnostics=false", f"determinism={mode}",
                         f"hydra.run.dir={out}"], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]

@@ -123,7 +123,7 @@ def test_color_correction_is_identity_at_start_and_absent_from_evaluation(tiny_s
 
 
 def run_cli(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "harness.ftgspp_cmd", *args], cwd=cwd, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "harness.cli.ftgspp_cmd", *args], cwd=cwd, capture_output=True,
                           text=True, timeout=600)
 
 

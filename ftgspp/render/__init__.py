@@ -1,7 +1,8 @@
 """One ``render()`` entry point over several rasterization backends.
 
-Backends share the EWA projection (``project.py``, plain PyTorch autograd) and differ in
-how they composite the projected 2D Gaussians:
+Backends share the EWA projection (``project.py``, plain PyTorch autograd) and the
+rasterizer contract and conventions of ``contract.py``, and differ in how they composite
+the projected 2D Gaussians:
 
 - ``reference``: pure PyTorch autograd, tile-masked like a tile rasterizer. The oracle.
 - ``cpu``: compiled Numba kernels with a hand-written backward (fast on CPU).
@@ -22,32 +23,11 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
-from dataclasses import dataclass
-from typing import Callable
 
 import torch
 
-# Compositing conventions of 3DGS, shared by every backend.
-TILE_SIZE = 16
-ALPHA_MAX = 0.99
-ALPHA_MIN = 1.0 / 255.0
-T_MIN = 1e-4
-EPS2D = 0.3  # low-pass added to the 2D covariance, in pixels^2
+from ftgspp.render.contract import EPS2D, TILE_SIZE, Rasterize, RenderOutput
 
-
-@dataclass
-class RenderOutput:
-    """What a backend returns. ``means2d`` keeps its gradient after backward (relocation score)."""
-
-    image: torch.Tensor  # [H, W, D] composited colours (+ background * (1 - alpha))
-    alpha: torch.Tensor  # [H, W, 1] accumulated opacity
-    depth: torch.Tensor  # [H, W, 1] alpha-weighted camera-space depth (not normalised)
-    means2d: torch.Tensor  # [N, 2] projected centres in pixels; .grad set after backward
-    radii: torch.Tensor  # [N] integer pixel radius, 0 = culled
-    depths: torch.Tensor  # [N] camera-space depth of each centre
-
-
-Rasterize = Callable[..., "tuple[torch.Tensor, torch.Tensor, torch.Tensor]"]
 BACKENDS = ("reference", "cpu", "gsplat", "auto")
 
 
@@ -108,7 +88,7 @@ def render(
         return _render_gsplat(means, quats, scales, opacities, colors, viewmat, K, width, height,
                               background, near_plane)  # fmt: skip
     rasterize = _import_backend(name)
-    from ftgspp.render.project import project  # here: project.py imports this package's constants
+    from ftgspp.render.project import project
 
     means2d, conics, depths, radii, _ = project(means, quats, scales, viewmat, K, width, height, near_plane)
     if means2d.requires_grad:

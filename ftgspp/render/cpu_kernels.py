@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from ftgspp.render import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
+from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
 
 F0 = np.float32(0.0)
 F1 = np.float32(1.0)

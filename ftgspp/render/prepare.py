@@ -23,9 +23,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ftgspp.render import EPS2D
-from ftgspp.render.cpu import f32_array  # imported first: it chooses the Numba threading layer
 from ftgspp.render import prepare_kernels as _pk  # noqa: I001
+from ftgspp.render.contract import EPS2D
+from ftgspp.render.cpu import f32_array  # imported first: it chooses the Numba threading layer
 
 # Model parameters the kernel reads, in kernel argument order.
 PARAM_NAMES = ("means", "velocities", "times", "durations", "scales", "quats", "opacities", "gates", "sh0", "shN")

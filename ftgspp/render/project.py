@@ -23,7 +23,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ftgspp.render import EPS2D
+from ftgspp.render.contract import EPS2D
 
 # Radii are clamped here before the int32 cast; a Gaussian this large covers any image.
 _RADIUS_MAX = 1.0e6

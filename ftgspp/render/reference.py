@@ -26,7 +26,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ftgspp.render import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
+from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
 
 # Upper bound on tiles * K * pixels evaluated at once (bounds memory, not results).
 CHUNK_ELEMENTS = 1 << 20

@@ -19,8 +19,8 @@ from pathlib import Path
 
 from clusterlib import HARNESS_TESTS, pg_server  # noqa: F401  (fixture)
 
-from harness.lease import is_live
-from harness.records import load_runs, open_store
+from harness.run.lease import is_live
+from harness.tracking.records import load_runs, open_store
 
 STUDY_BIN = Path(sys.executable).with_name("study")
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from clusterlib import pg_server, slurm_cluster  # noqa: F401  (fixtures)
 
-from harness.records import load_runs, open_store
+from harness.tracking.records import load_runs, open_store
 
 BIN = Path(sys.executable).parent
 # this test node has no GPU and little memory: ask for what it has

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from clusterlib import free_port, public_tmpdir, require, wait_http
 
-from harness.records import load_runs, open_store
+from harness.tracking.records import load_runs, open_store
 
 BIN = Path(sys.executable).parent
 

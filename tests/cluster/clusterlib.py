@@ -63,7 +63,7 @@ def public_tmpdir(prefix: str) -> Path:
 @pytest.fixture(scope="module")
 def pg_server():
     """``ftgspp-server`` (PostgreSQL + mlflow server) in a fresh folder; stopped afterwards."""
-    from harness.server import pg_bindir
+    from harness.cli.server import pg_bindir
 
     try:
         pg_bindir()

@@ -15,7 +15,7 @@ TOY_STUDIES = HERE / "studies"
 @pytest.fixture(scope="session")
 def mlflow_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An initialised, empty ``mlflow.db`` (creating one runs ~20 migrations: do it once)."""
-    from harness.tracking import Store
+    from harness.tracking.store import Store
 
     folder = tmp_path_factory.mktemp("mlflow_template")
     Store(f"sqlite:///{folder / 'mlflow.db'}").client.search_experiments()
@@ -35,13 +35,13 @@ def use_fakes(mp: pytest.MonkeyPatch) -> None:
     """Route ``study`` commands to the toy studies, the fake trainer and the fake generator."""
     import fakes
 
-    import harness.scenes
-    import harness.studies
-    import harness.train_app
+    import harness.run.scenes
+    import harness.run.training
+    import harness.spec.files
 
-    mp.setattr(harness.studies, "STUDIES_DIR", TOY_STUDIES)
-    mp.setattr(harness.train_app, "run_training", fakes.fake_train)
-    mp.setattr(harness.scenes, "_default_generator", lambda: fakes.fake_generate)
+    mp.setattr(harness.spec.files, "STUDIES_DIR", TOY_STUDIES)
+    mp.setattr(harness.run.training, "run_training", fakes.fake_train)
+    mp.setattr(harness.run.scenes, "_default_generator", lambda: fakes.fake_generate)
 
 
 @pytest.fixture

@@ -17,6 +17,6 @@ from conftest import use_fakes  # noqa: E402
 if __name__ == "__main__":
     mp = pytest.MonkeyPatch()
     use_fakes(mp)
-    from harness.cli import main
+    from harness.cli.study import main
 
     raise SystemExit(main(sys.argv[1:]))

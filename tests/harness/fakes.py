@@ -1,7 +1,7 @@
 """A fake trainer and scene generator for harness tests (no real training).
 
 ``fake_train`` follows the trainer's contract (``train(cfg, scene, tracker) -> RunResult``
-as called through ``harness.train_app.run_training``): it logs a loss curve and a
+as called through ``harness.run.training.run_training``): it logs a loss curve and a
 diagnostic PNG through the tracker and returns metrics that depend on the seed and the
 variant. Input errors are the real trainer's: the configuration goes through the same
 validation (``Relocator``, so ``strategy.relocation=teleport`` raises ``InputError``),
@@ -20,7 +20,7 @@ from pathlib import Path
 from ftgspp.config import TrainConfig
 from ftgspp.determinism import determinism_domain
 from ftgspp.strategy import Relocator
-from ftgspp.tracking import RunResult, Tracker
+from ftgspp.tracker import RunResult, Tracker
 
 LOSS_STEPS = 40  # per-step loss values each run logs
 

@@ -11,9 +11,10 @@ import pytest
 import yaml
 from fakes import fake_generate, fake_train
 
-from harness import claims as C
-from harness.claims_report import StudyClaims, claims_latex, claims_markdown, index_markdown
-from harness.studies import ClaimSpec
+from harness.analysis import claims as C
+from harness.report.claims import claims_latex, claims_markdown
+from harness.report.index import StudyClaims, index_markdown
+from harness.spec.study import ClaimSpec
 
 MINI = {
     "name": "mini",
@@ -83,17 +84,17 @@ def test_index_page_has_a_row_per_claim_charts_and_missing_studies():
 
 @pytest.mark.usefixtures("workdir")
 def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    import harness.studies
-    from harness.cli import main
-    from harness.report import write_report
-    from harness.runner import run_study
-    from harness.studies import Selection
+    import harness.spec.files
+    from harness.cli.study import main
+    from harness.report.writer import write_report
+    from harness.run.runner import run_study
+    from harness.spec.runs import Selection
 
     studies = tmp_path / "studies"
     studies.mkdir()
     (studies / "mini.yaml").write_text(yaml.safe_dump(MINI))
     (studies / "later.yaml").write_text(yaml.safe_dump({**MINI, "name": "later", "claims": []}))
-    monkeypatch.setattr(harness.studies, "STUDIES_DIR", studies)
+    monkeypatch.setattr(harness.spec.files, "STUDIES_DIR", studies)
     run_study("mini", Selection(), studies_dir=studies, train_fn=fake_train, generate=fake_generate,
               echo=lambda s: None)
     write_report("mini", studies_dir=studies, reports_root=Path("reports"), echo=lambda s: None)
@@ -108,7 +109,7 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     assert "## Claims" in Path("reports/mini/table.md").read_text()
     assert "tab:mini-claims" in Path("reports/mini/table.tex").read_text()
 
-    from harness.reports_plan import plan_frame
+    from harness.cli.reports_plan import plan_frame
 
     plan = plan_frame().set_index("study")
     assert plan.loc["mini", ["planned", "finished", "to_run"]].tolist() == [6, 6, 0]  # make reports resumes

@@ -9,21 +9,25 @@ import pandas as pd
 import pytest
 import yaml
 
-from harness import ladders, report
-from harness.studies import SceneSpec, Selection, parse_study
+from harness.analysis import ladders
+from harness.report import ladders as ladders_report, sections
+from harness.report.results import ReportData
+from harness.spec.files import parse_study
+from harness.spec.runs import Selection
+from harness.spec.study import StudyScene
 
 # The base cell is a rung of both ladders; the rest are listed out of order on purpose.
 # ftgspp_no_gate is a component ablation run on lr x30 only (judged against ftgspp's base cell);
 # gate_only extends no variant's name, so it has no reference.
 SCENES = (
-    SceneSpec("lr30", label="lr x30", rungs=(("lr_scale", 30.0),),
+    StudyScene("lr30", label="lr x30", rungs=(("lr_scale", 30.0),),
               variants=("baseline", "ftgspp", "ftgspp_no_gate", "gate_only")),
-    SceneSpec("cams3", label="3 cameras", rungs=(("cameras", 3.0),), variants=("baseline", "ftgspp")),
-    SceneSpec("base", rungs=(("lr_scale", 1.0), ("cameras", 10.0))),
-    SceneSpec("lr10", label="lr x10", rungs=(("lr_scale", 10.0),), variants=("baseline", "ftgspp")),
-    SceneSpec("cams6", label="6 cameras", rungs=(("cameras", 6.0),), variants=("baseline", "ftgspp")),
-    SceneSpec("lr3", label="lr x3", rungs=(("lr_scale", 3.0),), variants=("baseline", "ftgspp")),
-    SceneSpec("cams4", label="4 cameras", rungs=(("cameras", 4.0),), variants=("baseline", "ftgspp")),
+    StudyScene("cams3", label="3 cameras", rungs=(("cameras", 3.0),), variants=("baseline", "ftgspp")),
+    StudyScene("base", rungs=(("lr_scale", 1.0), ("cameras", 10.0))),
+    StudyScene("lr10", label="lr x10", rungs=(("lr_scale", 10.0),), variants=("baseline", "ftgspp")),
+    StudyScene("cams6", label="6 cameras", rungs=(("cameras", 6.0),), variants=("baseline", "ftgspp")),
+    StudyScene("lr3", label="lr x3", rungs=(("lr_scale", 3.0),), variants=("baseline", "ftgspp")),
+    StudyScene("cams4", label="4 cameras", rungs=(("cameras", 4.0),), variants=("baseline", "ftgspp")),
 )
 # (variant, scene) -> per seed: a PSNR (finished) or (status, failure)
 RUNS = {
@@ -126,7 +130,7 @@ def test_component_variant_only_where_it_ran_judged_against_the_method_it_extend
 
 def test_markdown_states_the_rule_the_cells_and_the_breaks() -> None:
     t = ladders.ladder_table(_frame(RUNS), SCENES)
-    md = ladders.ladders_markdown(t, ladders.first_breaks(t))
+    md = ladders_report.ladders_markdown(t, ladders.first_breaks(t))
     assert ladders.COLLAPSE_RULE in md
     assert "| 30 | lr x30 | — ± — (fail 2/2: 1/1/0) | 29.75 ± 0.35 (fail 0/2: 0/0/0) |" in md
     assert "`baseline` lr_scale 10 (lr x10); `ftgspp` none up to lr_scale 30." in md
@@ -136,14 +140,14 @@ def test_markdown_states_the_rule_the_cells_and_the_breaks() -> None:
 
 
 def test_write_makes_csv_plot_and_section(tmp_path: Path) -> None:
-    md = ladders.write(_frame(RUNS), SCENES, tmp_path, "toy ladders")
+    md = ladders_report.write(_frame(RUNS), SCENES, tmp_path, "toy ladders")
     assert (tmp_path / "ladders.png").stat().st_size > 0
     assert len(pd.read_csv(tmp_path / "ladders.csv")) == 2 * 4 * 2 + 2
     assert "![PSNR and failure rate along each ladder](ladders.png)" in md
 
 
 def test_studies_without_rungs_have_no_ladders() -> None:
-    plain = (SceneSpec("easy"), SceneSpec("hard"))
+    plain = (StudyScene("easy"), StudyScene("hard"))
     assert not ladders.has_ladders(plain)
     assert ladders.ladder_table(_frame(RUNS), plain).empty
 
@@ -160,10 +164,9 @@ def test_report_adds_the_section_only_when_cells_are_rungs(tmp_path: Path) -> No
     df = _frame({("baseline", "base"): [30.0, 30.4], ("baseline", "lr10"): [25.2, ("FAILED", "diverged")]})
     for study, out in ((plain, tmp_path / "plain"), (laddered, tmp_path / "laddered")):
         out.mkdir()
-        (out / "table.md").write_text("# tables\n")
-        data = report.ReportData(study, Selection(), [], df, "", "", [], None)
-        md = report.write_ladders(data, out)
-        assert bool(md) == (study is laddered)
+        data = ReportData(study, Selection(), [], df, "", "", [], None)
+        section = sections.ladders_section(data, out)
+        assert (section is not None) == (study is laddered)
         assert (out / "ladders.png").exists() == (study is laddered)
-    assert "## Stability ladders" in (tmp_path / "laddered" / "table.md").read_text()
-    assert "| 10 | lr10 | 25.20 ± — (fail 2/2: 0/1/1) |" in md
+    assert section is not None and section.title == "Stability ladders"
+    assert "| 10 | lr10 | 25.20 ± — (fail 2/2: 0/1/1) |" in section.md

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import pytest
 
-from harness.plan import plan_runs
-from harness.studies import Selection, expand, list_studies, load_study
+from harness.spec.files import list_studies, load_study
+from harness.spec.plan import plan_runs
+from harness.spec.runs import Selection, expand
 
 
 def composed(name: str, profile: str) -> dict[str, dict[str, str]]:

@@ -16,8 +16,10 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from harness import aggregate, plots
-from harness.speed_accuracy import markdown, pair_sentences, per_scene, report_markdown, smallest_per_scene
+from harness.analysis import aggregate
+from harness.analysis.speed_accuracy import per_scene, smallest_per_scene
+from harness.report import plots
+from harness.report.speed_accuracy import markdown, pair_sentences, report_markdown
 
 LABELS = {"static": "Static", "studio": "Studio", "fast": "Fast motion"}
 # (scene, variant) -> PSNR per seed, None = a failed run; absent pairs were never planned.
@@ -170,7 +172,7 @@ def test_per_scene_figure_is_written(tmp_path: Path) -> None:
 
 def _study():
     """A three-scene study whose scenes run their own seeds and variant subsets, as in ``PSNR``."""
-    from harness.studies import parse_study
+    from harness.spec.files import parse_study
 
     variants = {v: [f"budget={v.split('_')[0][1:]}", f"iterations={v.split('_')[1][1:]}"]
                 for v in ("b500_i1000", "b1000_i1000", "b2500_i1000", "b5000_i1000", "b5000_i300")}
@@ -189,16 +191,18 @@ def _study():
 
 
 def test_multi_scene_report_writes_the_per_scene_csv_figure_and_section(tmp_path: Path) -> None:
-    from harness.report import ReportData, write_index, write_plots
-    from harness.studies import Selection, expand
+    from harness.report.results import ReportData
+    from harness.report.sections import TablesSection, figures
+    from harness.report.writer import study_page
+    from harness.spec.runs import Selection, expand
 
     study, df = _study(), _frame()
     planned = {(r.variant, r.scene.name, r.seed) for r in expand(study, Selection())}
     assert planned == set(zip(df.variant, df.scene, df.seed))  # the planted cells are what the planner makes
     data = ReportData(study, Selection(), [], df, "sqlite:///mlflow.db", "ftgspp/sa3", [], None)
-    figures = write_plots(data, tmp_path)
-    write_index(data, tmp_path, [], figures, [])
-    assert [p.name for _, p in figures] == ["speed_accuracy.png"]
+    made = figures(data, tmp_path)
+    (tmp_path / "index.md").write_text(study_page(data, tmp_path, TablesSection([], {}, "", ""), [], made, []))
+    assert [p.name for _, p in made] == ["speed_accuracy.png"]
     sa = pd.read_csv(tmp_path / "speed_accuracy.csv")
     assert len(sa) == len(PSNR) and set(sa.scene) == set(LABELS)
     smallest = pd.read_csv(tmp_path / "speed_accuracy_smallest.csv").set_index("scene")

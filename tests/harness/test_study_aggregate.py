@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from harness.aggregate import AVERAGE, pareto_mask, smallest_within, speed_accuracy, stability, summarize
+from harness.analysis.aggregate import AVERAGE, pareto_mask, smallest_within, speed_accuracy, stability, summarize
 
 # 2 variants x 2 scenes x 4 seeds; base/s2 seed 3 failed, cc/s1 seed 2 diverged.
 PSNR = {
@@ -101,7 +101,7 @@ def test_speed_accuracy_and_stability_tables() -> None:
 
 
 def test_convention_gaps_are_paired_per_run_differences() -> None:
-    from harness.report import convention_gaps
+    from harness.analysis.aggregate import convention_gaps
 
     runs = pd.DataFrame({"variant": ["baseline"] * 3, "scene": ["s"] * 3, "seed": [0, 1, 2],
                          "status": ["FINISHED"] * 3, "failure": [""] * 3,

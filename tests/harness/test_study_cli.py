@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from harness.cli import main
-from harness.records import load_runs, open_store
+from harness.cli.study import main
+from harness.tracking.records import load_runs, open_store
 
 
 def _err_lines(capsys: pytest.CaptureFixture[str]) -> list[str]:
@@ -27,7 +27,8 @@ def test_list_names_every_study_with_run_counts(capsys: pytest.CaptureFixture[st
     out = capsys.readouterr().out
     for name in ("secret1", "secret5", "lpips", "ablation", "speed_accuracy", "stability"):
         assert f"{name}: " in out
-    from harness.studies import Selection, expand, load_study
+    from harness.spec.files import load_study
+    from harness.spec.runs import Selection, expand
 
     n = len(expand(load_study("secret5"), Selection(profile="quick")))
     assert f"quick: {n} runs = 5 variants x 1 scenes x 5 seeds" in out  # what `study run` would plan
@@ -104,7 +105,7 @@ def test_status_and_report_of_a_study_never_run_write_no_store(tmp_path: Path, m
 
 def test_overrides_may_follow_options(monkeypatch: pytest.MonkeyPatch) -> None:
     seen = {}
-    monkeypatch.setattr("harness.runner.run_study", lambda name, sel, jobs, **kw: seen.update(sel=sel, jobs=jobs, **kw))
+    monkeypatch.setattr("harness.run.runner.run_study", lambda name, sel, jobs, **kw: seen.update(sel=sel, jobs=jobs, **kw))
     assert main(["run", "secret5", "a=1", "--variants", "cc", "b=2", "--jobs", "2", "c=3"]) == 0
     assert seen["sel"].overrides == ["a=1", "b=2", "c=3"] and seen["sel"].variants == ["cc"] and seen["jobs"] == 2
     assert seen["launcher"] == "basic" and seen["lease_s"] is None

@@ -7,7 +7,7 @@ import dataclasses
 import torch
 
 from ftgspp.config import TrainConfig
-from harness.confighash import HASH_EXCLUDED, config_hash, flatten_config
+from harness.spec.confighash import HASH_EXCLUDED, config_hash, flatten_config
 
 
 def _hash(cfg: TrainConfig, synth: dict | None = None) -> str:

@@ -8,11 +8,11 @@ from pathlib import Path
 from conftest import TOY_STUDIES, prepare_workdir, use_fakes
 from fakes import fake_generate, fake_train
 
-from harness.cli import main as study_main
-from harness.records import load_runs, open_store
-from harness.report import write_report
-from harness.runner import run_study
-from harness.studies import Selection
+from harness.cli.study import main as study_main
+from harness.report.writer import write_report
+from harness.run.runner import run_study
+from harness.spec.runs import Selection
+from harness.tracking.records import load_runs, open_store
 
 
 def test_foreign_domains_are_announced_on_resume_and_flagged_in_status_and_report(

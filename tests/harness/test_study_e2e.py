@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from harness.cli import main
-from harness.records import load_runs, open_store
+from harness.cli.study import main
+from harness.tracking.records import load_runs, open_store
 
 pytestmark = pytest.mark.slow
 
@@ -49,7 +49,7 @@ SMOKE_VARIANT = {
 @pytest.mark.parametrize("study", sorted(SMOKE_VARIANT))
 def test_every_study_runs_and_reports_at_smoke_scale(study: str, workdir: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
-    from harness.studies import load_study
+    from harness.spec.files import load_study
 
     spec = load_study(study).profile("smoke")
     variant = SMOKE_VARIANT[study] or list(spec.variants)[-1]  # the most complete variant

@@ -8,8 +8,10 @@ import pytest
 import yaml
 
 from ftgspp.errors import InputError
-from harness.plan import plan_runs
-from harness.studies import TINY_SYNTH, Selection, expand, list_studies, load_study, parse_study
+from harness.spec.files import list_studies, load_study, parse_study
+from harness.spec.plan import plan_runs
+from harness.spec.runs import Selection, expand
+from harness.spec.study import TINY_SYNTH
 
 REQUIRED = {"secret1", "secret2", "secret3", "secret4", "secret5", "lpips", "ablation", "speed_accuracy", "stability"}
 
@@ -60,8 +62,8 @@ def test_runs_use_seed_base_plus_r_and_put_overrides_in_order() -> None:
 
 
 def test_fast_composition_matches_full_hydra_compose() -> None:
-    from harness.confighash import flatten_config
-    from harness.schema import compose, to_train_config
+    from harness.spec.confighash import flatten_config
+    from harness.spec.schema import compose, to_train_config
 
     study = load_study("stability")
     runs = expand(study, Selection(profile="quick", seeds=1, scenes=["lr_x10"]))

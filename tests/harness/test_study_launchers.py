@@ -14,11 +14,12 @@ import pytest
 from conftest import HERE, TOY_STUDIES, prepare_workdir
 from fakes import LOSS_STEPS, fake_generate, fake_train
 
-from harness.launchers import launcher_overrides
-from harness.records import load_runs, open_store
-from harness.runner import JobInfo, RunTask, run_study
-from harness.schema import CONF_DIR, register
-from harness.studies import Selection
+from harness.run.launchers import launcher_overrides
+from harness.run.runner import run_study
+from harness.run.task import JobInfo, RunTask
+from harness.spec.runs import Selection
+from harness.spec.schema import CONF_DIR, register
+from harness.tracking.records import load_runs, open_store
 
 EXP = "ftgspp/toy"
 

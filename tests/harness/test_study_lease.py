@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from harness import lease
-from harness.records import RunRecord, find_key_runs
-from harness.tracking import Store
+from harness.run import lease
+from harness.tracking.records import RunRecord, find_key_runs
+from harness.tracking.store import Store
 
 KEY = {"study": "toy", "variant": "baseline", "scene": "easy", "seed": "0", "config_hash": "abc123", "kind": "run"}
 
@@ -117,7 +117,7 @@ def test_lease_length_comes_from_the_option_or_the_environment(monkeypatch: pyte
 
 def test_status_lists_running_claims_with_host_and_age(workdir: Path, fakes_on: None, store: Store, exp: str,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
-    from harness.cli import main
+    from harness.cli.study import main
 
     assert main(["run", "toy", "--variants", "baseline", "--seeds", "1"]) == 0
     other = {**KEY, "seed": "1", "config_hash": "feed01"}
@@ -139,8 +139,8 @@ def test_a_worker_whose_run_was_taken_over_does_not_finish_it(workdir: Path) -> 
     from conftest import TOY_STUDIES
     from fakes import fake_generate, fake_train
 
-    from harness.runner import run_study
-    from harness.studies import Selection
+    from harness.run.runner import run_study
+    from harness.spec.runs import Selection
 
     def taken_over_midway(cfg, out_dir, tracker):
         tracker.store.terminate(tracker.run_id, "FAILED", {"failure": "interrupted", "error": "lease expired"})
@@ -158,9 +158,10 @@ def test_run_study_leaves_live_claims_to_their_owner(workdir: Path, store: Store
     from conftest import TOY_STUDIES
     from fakes import fake_generate, fake_train
 
-    from harness.plan import plan_runs
-    from harness.runner import run_study
-    from harness.studies import Selection, expand, load_study
+    from harness.run.runner import run_study
+    from harness.spec.files import load_study
+    from harness.spec.plan import plan_runs
+    from harness.spec.runs import Selection, expand
 
     sel = Selection(variants=["baseline"], seeds=2)
     seed1 = next(p for p in plan_runs(expand(load_study("toy", TOY_STUDIES), sel)) if p.spec.seed == 1)

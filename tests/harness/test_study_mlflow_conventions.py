@@ -11,11 +11,11 @@ import pytest
 from conftest import TOY_STUDIES
 from fakes import fake_generate, fake_train
 
-from harness.conventions import folder_fingerprint, scene_dataset
-from harness.provenance import git_sha
-from harness.records import load_runs, open_store
-from harness.runner import run_study
-from harness.studies import Selection
+from harness.run.runner import run_study
+from harness.spec.runs import Selection
+from harness.tracking.conventions import folder_fingerprint, scene_dataset
+from harness.tracking.provenance import git_sha
+from harness.tracking.records import load_runs, open_store
 
 
 def test_study_runs_follow_mlflow_conventions(workdir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -66,7 +66,7 @@ def test_runs_of_one_scene_starting_together_all_get_the_dataset(workdir: Path) 
     (behind a server there is no client-side lock to serialise them). All must get it."""
     import threading
 
-    from harness.tracking import Store
+    from harness.tracking.store import Store
 
     uri = f"sqlite:///{Path('mlflow.db').resolve()}"
     main = Store(uri)

@@ -15,10 +15,11 @@ import pytest
 from conftest import HERE, TOY_STUDIES, prepare_workdir, use_fakes
 from fakes import LOSS_STEPS, fake_generate, fake_train
 
-from harness.lease import is_live
-from harness.records import load_runs, open_store
-from harness.runner import run_study
-from harness.studies import Selection
+from harness.run.lease import is_live
+from harness.run.runner import run_study
+from harness.spec.runs import Selection
+from harness.tracking.records import load_runs, open_store
+
 
 def _uri() -> str:
     return f"sqlite:///{Path('mlflow.db').resolve()}"
@@ -96,7 +97,7 @@ def test_nothing_left_means_nothing_written(toy) -> None:
 
 def test_status_and_report(toy, capsys: pytest.CaptureFixture[str]) -> None:
     use_fakes(toy["mp"])
-    from harness.cli import main
+    from harness.cli.study import main
 
     assert main(["status", "toy"]) == 0
     out = capsys.readouterr().out
@@ -115,7 +116,7 @@ def test_status_and_report(toy, capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_report_if_changed_skips_only_an_unchanged_report(toy, capsys: pytest.CaptureFixture[str]) -> None:
     use_fakes(toy["mp"])
-    from harness.cli import main
+    from harness.cli.study import main
 
     assert main(["report", "toy"]) == 0
     stamp = toy["work"] / "reports" / "toy" / ".fingerprint"

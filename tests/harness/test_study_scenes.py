@@ -10,13 +10,14 @@ import pytest
 
 from ftgspp.data.synthetic import resolve_config
 from ftgspp.errors import InputError
-from harness.scenes import MARKER, ensure_scene, validate_synth
-from harness.studies import SceneSpec
+from harness.run.scenes import MARKER, ensure_scene
+from harness.spec.study import StudyScene
+from harness.spec.synth import validate_synth
 
 
-def _scene(tmp_path: Path, **synth) -> SceneSpec:
+def _scene(tmp_path: Path, **synth) -> StudyScene:
     args = {"preset": "studio", "seed": 0, "layout": "dynerf", **synth}
-    return SceneSpec("s", args, (), "", str(tmp_path / "s"))
+    return StudyScene("s", args, (), "", str(tmp_path / "s"))
 
 
 def test_generate_once_then_reuse_then_regenerate_on_change(tmp_path: Path) -> None:

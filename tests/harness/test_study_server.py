@@ -15,10 +15,10 @@ import pytest
 from conftest import TOY_STUDIES
 from fakes import LOSS_STEPS, fake_generate, fake_train
 
-from harness.records import load_runs, open_store
-from harness.report import write_report
-from harness.runner import run_study
-from harness.studies import Selection
+from harness.report.writer import write_report
+from harness.run.runner import run_study
+from harness.spec.runs import Selection
+from harness.tracking.records import load_runs, open_store
 
 pytestmark = pytest.mark.slow
 START_TIMEOUT_S = 120

@@ -7,7 +7,7 @@ import re
 
 import pandas as pd
 
-from harness.tables import Cell, rank_column, to_latex, to_markdown, variants_x_scenes
+from harness.report.tables import Cell, rank_column, to_latex, to_markdown, variants_x_scenes
 
 
 def _summary(metric: str, means: dict[tuple[str, str], float]) -> pd.DataFrame:

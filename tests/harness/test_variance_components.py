@@ -8,8 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.studies import VarianceSpec
-from harness.variance import components, components_markdown
+from harness.analysis.variance import components
+from harness.report.sections import components_markdown
+from harness.spec.study import VarianceSpec
 
 SPEC = VarianceSpec("psnr", "fixed", "free", ("hw_a", "hw_b", "hw_c"))
 

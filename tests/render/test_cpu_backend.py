@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from ftgspp.render import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
+from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
 from ftgspp.render import cpu
 from ftgspp.render.reference import rasterize as reference_rasterize
 from tests.numba_threads import under_thread_counts

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from ftgspp.render import EPS2D
+from ftgspp.render.contract import EPS2D
 from ftgspp.render.project import covariance_3d, project, quat_to_rotmat
 
 W, H = 64, 48

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 import ftgspp.render.reference as reference
-from ftgspp.render import ALPHA_MAX, ALPHA_MIN, T_MIN, render, resolve_backend
+from ftgspp.render import render, resolve_backend
+from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN
 from ftgspp.render.reference import rasterize
 
 W, H = 20, 17  # 2 x 2 tiles, the last row and column of tiles partly outside the image

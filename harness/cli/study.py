@@ -1,0 +1,214 @@
+"""The ``study`` command: list, run, status and report the paper's studies.
+
+    study list
+    study run NAME [--profile quick|paper|smoke] [--seeds N] [--scenes A,B] [--variants A,B]
+                   [--jobs N] [--launcher basic|joblib|local|slurm] [--lease SECONDS]
+                   [key=value overrides ...]
+    study status NAME [same selection options]
+    study report NAME [same selection options] [--out DIR]
+    study index [--out DIR]          reports/index.md: every study's claims with verdicts
+
+Studies live in ``studies/NAME.yaml``. Runs are tracked in MLflow (``sqlite:///mlflow.db``
+in the working directory unless ``MLFLOW_TRACKING_URI`` or ``tracking.uri=`` says
+otherwise); ``status`` and ``report`` without selection options use the latest ``run``
+invocation of the study. Several ``study run`` invocations (nodes, array jobs, a second
+one by hand) may share one tracking server: each run is claimed with a lease first
+(``harness.lease``), and ``status`` lists the runs in progress with their host and age. Bad input (unknown study, variant or scene, bad override,
+unreachable tracking store) prints one line and exits 2 before anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from ftgspp.errors import InputError, exit_on_input_error
+from harness.run.launchers import LAUNCHERS
+from harness.spec.runs import Selection
+from harness.spec.study import PROFILES
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a usage error as one line and exit status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        print(f"error: {self.prog}: {message} (see study --help)", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def _csv(text: str) -> list[str]:
+    return [t for t in text.split(",") if t]
+
+
+def _selection_args(p: argparse.ArgumentParser, name_optional: bool = False) -> None:
+    if name_optional:
+        p.add_argument("name", nargs="?", default=None, help="study name (study list); none with --all")
+    else:
+        p.add_argument("name", help="study name (study list)")
+    p.add_argument("--profile", choices=PROFILES, default=None, help="quick (default), paper or smoke")
+    p.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the profile's)")
+    p.add_argument("--scenes", type=_csv, action="extend", default=[], help="comma-separated subset of scenes")
+    p.add_argument("--variants", type=_csv, action="extend", default=[], help="comma-separated subset of variants")
+    p.add_argument("overrides", nargs="*", help="Hydra overrides for every run, e.g. iterations=500")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="study", description=__doc__.split("\n\n")[0],
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub.add_parser("list", help="the studies, their questions and run counts")
+    run = sub.add_parser("run", help="run the missing or failed runs of a study")
+    _selection_args(run)
+    run.add_argument("--jobs", type=int, default=None,
+                     help="parallel runs (Hydra joblib launcher); default: the profile's `jobs` (2 in the quick"
+                          " profiles: 1.36x the throughput of 1 job on 2 cores, BENCHMARKS.md), at most one per core")
+    run.add_argument("--launcher", choices=LAUNCHERS, default="basic",
+                     help="basic (default), joblib, local (submitit) or slurm (submitit; conf/hydra/launcher/slurm.yaml)")
+    run.add_argument("--lease", type=float, default=None, metavar="SECONDS",
+                     help="a claimed run is taken over after this long without a heartbeat"
+                          " (default $FTGSPP_LEASE_S or 300)")
+    status = sub.add_parser("status", help="done / failed / missing runs per variant, scene and seed")
+    _selection_args(status)
+    report = sub.add_parser("report", help="tables and plots into reports/NAME/ (NAME --all: every study)")
+    _selection_args(report, name_optional=True)
+    report.add_argument("--out", type=Path, default=Path("reports"), help="reports root (default: reports)")
+    report.add_argument("--all", action="store_true", help="every study, in one process (no NAME)")
+    report.add_argument("--if-changed", action="store_true",
+                        help="skip a report whose runs and code are those it was made from (reports/NAME/.fingerprint)")
+    index = sub.add_parser("index", help="reports/index.md: one row per claim of every study with runs")
+    index.add_argument("--out", type=Path, default=Path("reports"), help="reports root (default: reports)")
+    return parser
+
+
+def _selection(args: argparse.Namespace, required: bool) -> Selection | None:
+    given = args.profile or args.seeds is not None or args.scenes or args.variants or args.overrides
+    if not given and not required:
+        return None
+    return Selection(profile=args.profile or "quick", seeds=args.seeds, scenes=list(args.scenes),
+                     variants=list(args.variants), overrides=list(args.overrides))
+
+
+def default_jobs(study: str, profile: str) -> int:
+    """Parallel runs when ``--jobs`` is not given: the profile's ``jobs`` (the quick profiles
+    say 2: runs spend part of their time single-threaded - evaluation, diagnostics, logging),
+    at most one per core."""
+    from harness.spec.files import load_study
+
+    return max(1, min(load_study(study).profile(profile).jobs, os.cpu_count() or 1))
+
+
+def cmd_list() -> int:
+    from harness.spec.files import list_studies, load_study
+    from harness.spec.runs import Selection, describe_runs, expand
+
+    for name in list_studies():
+        s = load_study(name)
+        print(f"{name}: {s.question}")
+        for prof in ("quick", "paper"):
+            p = s.profiles[prof]
+            print(f"    {prof:5s}: {describe_runs(expand(s, Selection(profile=prof)))}; {p.expected_runtime}")
+        print(f"    run: {s.profiles['quick'].command}")
+    return 0
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    import pandas as pd
+
+    from harness.analysis import aggregate
+    from harness.report.results import collect
+
+    data = collect(args.name, _selection(args, required=False))
+    df = data.df
+    print(f"{args.name} ({data.sel.profile}): {len(df)} runs in {data.experiment} at {data.uri}")
+    width = max(len("variant"), *(len(v) for v in df.variant))
+    swidth = max(len("scene"), *(len(s) for s in df.scene))
+    print(f"  {'variant':{width}s}  {'scene':{swidth}s}  done  failed  missing  detail")
+    for (v, s), sub in df.groupby(["variant", "scene"], sort=False):
+        done = int((sub.status == "FINISHED").sum())
+        failed = sub[sub.status.isin(["FAILED", "KILLED"])]
+        missing = sub[sub.status.isin(["MISSING", "RUNNING"])]
+        detail = []
+        doms = sorted(set(sub[sub.status == "FINISHED"].get("domain", pd.Series(dtype=str)).dropna()) - {""})
+        if len(doms) > 1:
+            detail.append(f"MIXED determinism domains {', '.join(doms)}")
+        if len(failed):
+            detail.append("failed seeds " + ", ".join(f"{r.seed}" + (f" ({r.failure})" if r.failure else "")
+                                                       for r in failed.itertuples()))
+        if len(missing):
+            detail.append("missing seeds " + ", ".join(str(x) for x in missing.seed))
+        print(f"  {v:{width}s}  {s:{swidth}s}  {done:4d}  {len(failed):6d}  {len(missing):7d}  {'; '.join(detail)}")
+    done = int((df.status == "FINISHED").sum())
+    failed = int(df.status.isin(["FAILED", "KILLED"]).sum())
+    running = _print_running(data.uri, data.experiment, args.name)
+    print(f"total: {done} done, {failed} failed, {len(df) - done - failed} missing"
+          + (f"; {running} running now (listed above)" if running else ""))
+    doms = aggregate.domains(df)
+    if len(doms):
+        print("determinism domains: " + "; ".join(f"{d.domain} ({d['mode']}, {d.cpu_capability}, {d.runs} runs)"
+                                                 for _, d in doms.iterrows()))
+    return 0
+
+
+def _print_running(uri: str, experiment: str, study: str) -> int:
+    """List the study's RUNNING child runs with their host, age and lease state."""
+    import time
+
+    from harness.run import lease
+    from harness.tracking.records import load_runs, open_store
+
+    now = time.time()
+    runs = [r for r in load_runs(open_store(uri), experiment, study) if r.status == "RUNNING"]
+    for rec in runs:
+        state = "live" if lease.is_live(rec, now=now) else "stale: the next `study run` takes it over"
+        age = now - rec.start_time / 1000.0
+        print(f"  running: {rec.tags.get('mlflow.runName', rec.run_id)} on {rec.tags.get(lease.OWNER, 'unknown host')},"
+              f" started {age:.0f}s ago, heartbeat {lease.heartbeat_age(rec, now):.0f}s ago ({state})")
+    return len(runs)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``study`` console script."""
+    parser = build_parser()
+    # overrides may come after options too (argparse would have consumed the positional early)
+    args, extra = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
+    if extra and (args.command in ("list", "index") or any(e.startswith("-") for e in extra)):
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    if extra:
+        args.overrides = [*args.overrides, *extra]
+    try:
+        if args.command == "list":
+            return cmd_list()
+        if args.command == "run":
+            from harness.run.runner import run_study
+
+            sel = _selection(args, required=True)
+            run_study(args.name, sel, jobs=default_jobs(args.name, sel.profile) if args.jobs is None else args.jobs,
+                      launcher=args.launcher,
+                      lease_s=args.lease)
+            return 0
+        if args.command == "status":
+            return cmd_status(args)
+        if args.command == "report":
+            from harness.report.writer import write_report
+            from harness.spec.files import list_studies
+
+            if args.all == bool(args.name):
+                raise InputError("study report", "give a study name or --all (not both)")
+            for name in list_studies() if args.all else [args.name]:
+                write_report(name, _selection(args, required=False), reports_root=args.out, if_changed=args.if_changed,
+                             skip_empty=args.all)
+            return 0
+        if args.command == "index":
+            from harness.report.index import write_claims_index
+
+            write_claims_index(args.out)
+            return 0
+    except InputError as err:
+        exit_on_input_error(err)
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

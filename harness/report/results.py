@@ -1,0 +1,111 @@
+"""The read side: a study's plan and runs as one per-run DataFrame, without running anything.
+
+``collect(name, sel)`` loads the study file, plans the selection (the given one, else the
+study's latest ``study run`` invocation, else the quick profile), reads the study's runs from
+the tracking store once, picks for every planned run the attempt that counts (the latest
+FINISHED, else the latest failed one: ``tracking.records.select``) and builds ``runs_frame``:
+one row per planned run (missing ones included, status MISSING) with its status, failure,
+determinism domain, metrics and key params. Reading never creates a store.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from harness.analysis.aggregate import AVERAGE, DOMAIN_COLUMNS, EXTRA_PARAMS, KEY_COLUMNS
+from harness.spec.files import load_study
+from harness.spec.plan import PlannedRun, RunKey, plan_runs
+from harness.spec.runs import Selection, expand
+from harness.spec.study import StudySpec
+from harness.tracking.records import RunRecord, latest_invocation, load_runs, open_store, select, tracking_target
+from harness.tracking.store import Store
+
+
+@dataclass
+class ReportData:
+    """Everything a report is made from."""
+
+    study: StudySpec
+    sel: Selection
+    planned: list[PlannedRun]
+    df: pd.DataFrame
+    uri: str
+    experiment: str
+    parents: list[RunRecord]
+    store: Store | None
+    chosen: dict[Any, RunRecord | None] = field(default_factory=dict)
+
+    @property
+    def baseline(self) -> str:
+        """The baseline variant of the reported profile."""
+        return self.study.profile(self.sel.profile).baseline
+
+    def labels(self) -> dict[str, str]:
+        """Scene name -> column title (``average`` -> "Average")."""
+        labels = {p.spec.scene.name: p.spec.scene.title for p in self.planned}
+        labels[AVERAGE] = "Average"
+        return labels
+
+    def order(self) -> tuple[list[str], list[str]]:
+        """(variants in profile order that have rows, scenes in plan order)."""
+        prof = self.study.profile(self.sel.profile)
+        variants = [v for v in prof.variants if v in set(self.df.variant)]
+        return variants, list(dict.fromkeys(self.df.scene))
+
+    def code_versions(self) -> list[str]:
+        """The git commits recorded by the runs that count."""
+        return sorted({rec.tags.get("git_sha", "") for rec in self.chosen.values() if rec is not None} - {""})
+
+
+def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]) -> pd.DataFrame:
+    """One row per planned run with its status, failure, error, metrics and key params."""
+    rows = []
+    for p in planned:
+        rec = chosen.get(p.key)
+        row: dict[str, object] = dict(zip(KEY_COLUMNS, p.key))
+        row["scene_label"] = p.spec.scene.title
+        for name in EXTRA_PARAMS:
+            row[name] = float(p.params[name]) if name in p.params else math.nan
+        if rec is None:
+            row.update(status="MISSING", failure="", error="", run_id="")
+        else:
+            row.update(status=rec.status, failure=rec.failure, error=rec.error, run_id=rec.run_id)
+            row.update({col: rec.tags.get(tag, "") for col, tag in DOMAIN_COLUMNS.items()})
+            if rec.status == "FINISHED":
+                row.update(rec.metrics)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _invocation(inv: dict[str, Any]) -> Selection:
+    return Selection(**{k: inv[k] for k in ("profile", "seeds", "scenes", "variants", "overrides")})
+
+
+def collect(name: str, sel: Selection | None = None, studies_dir: Path | None = None) -> ReportData:
+    """Load the study, plan the selection to report and read its runs (read-only).
+
+    Without ``sel``: the latest invocation's selection, else the quick profile. The store
+    is found from the first run's config, so only the reported selection is planned in full.
+    """
+    study = load_study(name, studies_dir)
+    base = sel or Selection()
+    specs = expand(study, base)
+    target = tracking_target(base.overrides, plan_runs(specs[:1])[0].params, name)
+    store = open_store(target[0])
+    parents = load_runs(store, target[1], name, kind="study")
+    inv = None if sel is not None else latest_invocation(parents)
+    if inv is not None:
+        base = _invocation(inv)
+        specs = expand(study, base)
+    planned = plan_runs(specs)
+    if (final := tracking_target(base.overrides, planned[0].params, name)) != target:
+        target, store = final, open_store(final[0])
+        parents = load_runs(store, target[1], name, kind="study")
+    uri, exp = target
+    chosen = select(load_runs(store, exp, name), [p.key for p in planned])
+    return ReportData(study, base, planned, runs_frame(chosen, planned), uri, exp, parents, store, chosen)

@@ -1,0 +1,91 @@
+"""Speed against accuracy per scene in a report: the smallest-budget table and one sentence
+per pair of scenes (numbers from ``analysis.speed_accuracy``)."""
+
+from __future__ import annotations
+
+import math
+from itertools import combinations
+
+import pandas as pd
+
+from harness.analysis.speed_accuracy import per_scene, smallest_per_scene
+from harness.report.tables import PRETTY
+
+
+def _pm(mean: float, ci: float, digits: int = 2) -> str:
+    """``mean ± ci`` (``mean`` alone when there is no interval)."""
+    if math.isnan(mean):
+        return "—"
+    return f"{mean:.{digits}f}" if math.isnan(ci) else f"{mean:.{digits}f} ± {ci:.{digits}f}"
+
+
+def _count(x: float) -> str:
+    return "—" if math.isnan(x) else f"{int(x)}"
+
+
+def _gap(row: pd.Series) -> str:
+    return "0 (is the best)" if row.variant == row.best_variant else _pm(row.gap, row.gap_ci95)
+
+
+def _settled(row: pd.Series, tol_db: float) -> str:
+    if pd.isna(row.gap_ci_includes_tol):
+        return "— (fewer than 2 runs or no spread)"
+    return f"no: the CI reaches {tol_db:g} dB" if row.gap_ci_includes_tol else "yes"
+
+
+def _unsettled(row: pd.Series) -> bool:
+    """True unless the gap's CI shows the chosen variant within the tolerance."""
+    return bool(pd.isna(row.gap_ci_includes_tol) or row.gap_ci_includes_tol)
+
+
+def pair_sentences(chosen: pd.DataFrame) -> list[str]:
+    """One sentence per pair of scenes comparing their chosen budgets (and iterations)."""
+    out = []
+    for (_, a), (_, b) in combinations(chosen.iterrows(), 2):
+        small, large = sorted((a, b), key=lambda r: r.budget)
+        if small.budget == large.budget:
+            text = f"{small.scene_label} and {large.scene_label} both need {_count(small.budget)} Gaussians"
+        else:
+            text = (f"{small.scene_label} needs {_count(small.budget)} Gaussians,"
+                    f" {large.scene_label} {_count(large.budget)}")
+            if small.budget > 0:
+                text += f" ({large.budget / small.budget:.3g}× as many)"
+        if small.iterations != large.iterations:
+            text += f"; iterations {_count(small.iterations)} against {_count(large.iterations)}"
+        unsettled = [r.scene_label for r in (small, large) if _unsettled(r)]
+        if unsettled:
+            text += f"; not settled for {' and '.join(unsettled)} (the gap's CI reaches the tolerance)"
+        out.append(text + ".")
+    return out
+
+
+def markdown(chosen: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr") -> str:
+    """Per-scene table of ``smallest_per_scene`` followed by one sentence per scene pair."""
+    name = PRETTY.get(metric, metric)
+    lines = [f"| Scene | Smallest budget | Iterations | {name} (mean ± 95% CI) | Best variant | Best {name} |"
+             f" Gap to best (± 95% CI) | Within {tol_db:g} dB settled? |",
+             "|---|---:|---:|---:|---|---:|---:|---|"]
+    for _, r in chosen.iterrows():
+        lines.append(f"| {r.scene_label} | {_count(r.budget)} (`{r.variant}`) | {_count(r.iterations)} |"
+                     f" {_pm(r['mean'], r.ci95)} | `{r.best_variant}` | {_pm(r.best_mean, r.best_ci95)} |"
+                     f" {_gap(r)} | {_settled(r, tol_db)} |")
+    sentences = pair_sentences(chosen)
+    if sentences:
+        lines += ["", *[f"- {s}" for s in sentences]]
+    return "\n".join(lines)
+
+
+def report_markdown(df: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr") -> str:
+    """The report's section: heading, how to read it, the table and the scene comparisons."""
+    sa = per_scene(df, metric)
+    chosen = smallest_per_scene(sa, df, tol_db, metric)
+    lines = [f"### Smallest budget within {tol_db:g} dB of the best, per scene", "",
+             f"Per scene, the variant with the smallest Gaussian budget (then fewest iterations, then least"
+             f" time) whose mean {PRETTY.get(metric, metric)} is within {tol_db:g} dB of that scene's best."
+             " Gap = best mean − chosen mean, 95% CI from a Welch t-interval over the two variants' runs;"
+             f" when it reaches {tol_db:g} dB, the runs cannot tell whether the budget is enough.", "",
+             markdown(chosen, tol_db, metric)]
+    empty = [s for s in dict.fromkeys(df.scene_label) if s not in set(chosen.scene_label)]
+    if empty:
+        lines += ["", f"No finished runs on: {', '.join(empty)}."]
+    return "\n".join(lines)

@@ -1,0 +1,200 @@
+"""``study report NAME``: tables, plots and an index under ``reports/NAME/``.
+
+The runs that count are the study's planned runs for the latest invocation (or for the
+selection given on the command line), matched by (variant, scene, seed, config_hash);
+for each the latest FINISHED attempt, else the latest failed one (``report.results``).
+Written files:
+
+- ``table.md`` / ``table.tex``: the paper-layout tables (``report.tables``), a Welch t-test
+  table against the baseline, run counts and the list of failed runs;
+- ``strip_<metric>.png``, ``speed_accuracy.png``, ``stability.png`` as the study asks;
+- ``diagnostics/<variant>/<scene>/...``: diagnostic images the runs logged under the
+  ``diagnostics/`` artifact path (lowest finished seed per cell);
+- ``runs.csv`` (one row per run) and ``summary.csv`` (mean, std, CI, t, p per cell);
+- ``index.md``: question, exact commands, config hashes, links to all of the above;
+- ``claims.csv`` and a "Claims" section in ``table.md``, ``table.tex`` and ``index.md``: each
+  claim of the study file with its verdict (``analysis.claims``, ``report.claims``);
+- ``variance.csv`` and a "Sources of run-to-run spread" section when the study names
+  ``variance_components``;
+- ``ladders.csv``, ``ladders.png`` and a "Stability ladders" section in ``table.md`` and
+  ``index.md`` when the profile's cells are rungs of difficulty ladders (``report.ladders``).
+
+Each part comes from ``report.sections``; this module puts them together in a fixed order.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from pathlib import Path
+from typing import Callable
+
+import pandas as pd
+
+from harness.analysis import aggregate
+from harness.report import sections, speed_accuracy as speed_accuracy_report, tables
+from harness.report.results import ReportData, collect
+from harness.spec.runs import Selection, command_line
+
+REPORTS_ROOT = Path("reports")
+
+
+def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra: list[sections.Section],
+               figures: list[tuple[str, Path]], diags: list[tuple[str, str, int, list[Path]]]) -> str:
+    """The study's ``index.md``: question, how to reproduce, the sections, plots, diagnostics,
+    config hashes and where the runs are tracked."""
+    study, df = data.study, data.df
+    prof = study.profile(data.sel.profile)
+    c = aggregate.counts(df)
+    cmds = list(dict.fromkeys(p.tags.get("command", "") for p in data.parents
+                              if p.tags.get("profile") == data.sel.profile and p.tags.get("command")))
+    hashes = sorted({r for r in df.config_hash})
+    git = data.code_versions()
+    lines = [
+        f"# Study `{study.name}` ({data.sel.profile} profile)",
+        "",
+        f"**Question.** {study.question}",
+        "",
+    ]
+    if study.notes:
+        lines += [f"**Notes.** {study.notes}", ""]
+    lines += [
+        f"Runs: {c['n_runs']} planned = {df.variant.nunique()} variants × {df.scene.nunique()} scenes ×"
+        f" {df.seed.nunique()} seeds; {c['n_finished']} finished, {c['n_failed']} failed"
+        f" ({c['n_diverged']} diverged), {c['n_missing'] + c['n_running']} missing."
+        f" Baseline: `{prof.baseline}`. Expected runtime: {prof.expected_runtime or 'n/a'}.",
+        "",
+        "## Reproduce",
+        "",
+        "```sh",
+        command_line(study.name, data.sel),
+        f"study report {study.name}",
+        "```",
+        "",
+    ]
+    if cmds:
+        lines += ["Invocations that produced these runs:", "", *[f"- `{cmd}`" for cmd in cmds], ""]
+    lines += sections.determinism_lines(df)
+    for section in extra:
+        lines += [f"## {section.title}", "", section.md, ""]
+    lines += ["## Tables", "",
+              "Full tables, t-tests and failures: [table.md](table.md); LaTeX: [table.tex](table.tex);",
+              "per-run data: [runs.csv](runs.csv), per-cell statistics: [summary.csv](summary.csv).", ""]
+    if main.tables:
+        lines += [f"### {main.tables[0].title}", "", tables.to_markdown(main.tables[0]), ""]
+    if "speed_accuracy" in study.plots and df.scene.nunique() > 1:
+        lines += [speed_accuracy_report.report_markdown(df), "",
+                  "Per scene and variant: [speed_accuracy.csv](speed_accuracy.csv); the chosen budgets:"
+                  " [speed_accuracy_smallest.csv](speed_accuracy_smallest.csv).", ""]
+    elif "speed_accuracy" in study.plots:
+        sa = aggregate.speed_accuracy(df)
+        chosen = aggregate.smallest_within(sa)
+        if chosen is not None and sa.budget.nunique() > 1:  # a budget sweep (not e.g. a learning-rate one)
+            lines += [f"**Smallest budget within 0.1 dB of the best:** `{chosen['variant']}` — budget"
+                      f" {int(chosen['budget'])} Gaussians, {int(chosen['iterations'])} iterations,"
+                      f" PSNR {chosen['mean']:.2f} dB, {chosen['train_seconds']:.1f} s of training.", ""]
+    if figures:
+        lines += ["## Plots", ""]
+        for caption, p in figures:
+            lines += [f"### {caption}", "", f"![{caption}]({p.relative_to(out).as_posix()})", ""]
+    if diags:
+        lines += ["## Diagnostics", "",
+                  "Logged by the runs under the `diagnostics/` artifact path (lowest finished seed).", ""]
+        for v, s, seed, paths in diags:
+            lines += [f"### {v} / {s} (seed {seed})", ""]
+            lines += [_embed(p, out) for p in paths] + [""]
+    lines += [
+        "## Config hashes",
+        "",
+        "`config_hash` = hash of the resolved training config (without output/logging keys)"
+        " plus the synthetic scene's generator arguments; runs are resumed and matched by it.",
+        "",
+        "<details><summary>" + f"{len(hashes)} config hashes" + "</summary>",
+        "",
+        "| Variant | Scene | Seed | config_hash | Status | MLflow run |",
+        "|---|---|---:|---|---|---|",
+        *[f"| {r.variant} | {r.scene} | {r.seed} | `{r.config_hash}` | {r.status} | {str(r.run_id)[:8]} |"
+          for r in df.itertuples()],
+        "",
+        "</details>",
+        "",
+        "## Tracking",
+        "",
+        f"MLflow store `{_display_uri(data.uri)}`, experiment `{data.experiment}`; code at {', '.join(git) or 'unknown'}.",
+        f"Parent runs: {', '.join(p.run_id[:8] for p in data.parents) or 'none'}. Browse them with:",
+        "",
+        "```sh",
+        f"mlflow ui --backend-store-uri {_display_uri(data.uri)}" if data.uri.startswith("sqlite") else f"open {data.uri}",
+        "```",
+        "",
+        f"_Generated by `study report {study.name}` on {time.strftime('%Y-%m-%d %H:%M')}._",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+FINGERPRINT = ".fingerprint"  # what a report was made from: its runs and the code that wrote it
+
+
+def fingerprint(df: pd.DataFrame) -> str:
+    """A hash of the planned runs (run id, status, every metric) and of the harness code
+    version: equal fingerprints mean the report would come out the same."""
+    from harness.tracking.provenance import git_sha
+
+    cols = sorted(c for c in df.columns if c not in ("scene_label",))
+    blob = df[cols].sort_values(["variant", "scene", "seed"]).to_csv(index=False) + git_sha()
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path | None = None,
+                 reports_root: Path = REPORTS_ROOT, echo: Callable[[str], None] = print,
+                 if_changed: bool = False, skip_empty: bool = False) -> Path | None:
+    """Write ``reports/<name>/`` and return its index path. ``if_changed``: leave the report as
+    it is when its runs and the code are those it was made from (``.fingerprint``).
+    ``skip_empty``: write nothing (and return None) for a study without finished runs."""
+    data = collect(name, sel, studies_dir)
+    if skip_empty and not (data.df.status == "FINISHED").any():
+        echo(f"{name}: no finished runs, no report")
+        return None
+    out = Path(reports_root) / name
+    stamp = fingerprint(data.df)
+    if if_changed and (out / FINGERPRINT).is_file() and (out / FINGERPRINT).read_text().strip() == stamp:
+        echo(f"{name}: report up to date ({out / 'index.md'})")
+        return out / "index.md"
+    out.mkdir(parents=True, exist_ok=True)
+    data.df.to_csv(out / "runs.csv", index=False)
+    main = sections.tables_section(data)
+    extra = [s for s in (sections.claims_section(data, out), sections.variance_section(data, out),
+                         sections.ladders_section(data, out)) if s is not None]
+    (out / "table.md").write_text(main.md + "".join(f"\n## {s.title}\n\n{s.md}\n" for s in extra))
+    (out / "table.tex").write_text(main.tex + "".join(f"\n{s.tex}\n" for s in extra if s.tex))
+    if main.summaries:
+        pd.concat(main.summaries.values(), ignore_index=True).to_csv(out / "summary.csv", index=False)
+    figures = sections.figures(data, out)
+    diags = sections.diagnostics(data, out)
+    (out / "index.md").write_text(study_page(data, out, main, extra, figures, diags))
+    (out / FINGERPRINT).write_text(stamp + "\n")
+    c = aggregate.counts(data.df)
+    echo(f"{name}: report of {c['n_runs']} runs ({c['n_finished']} finished, {c['n_failed']} failed,"
+         f" {c['n_missing'] + c['n_running']} missing) written to {out / 'index.md'}")
+    return out / "index.md"
+
+
+def _embed(path: Path, root: Path) -> str:
+    """Markdown for one diagnostic file: images inline, anything else (JSON numbers) as a link."""
+    rel = path.relative_to(root).as_posix()
+    if path.suffix.lower() in {".png", ".jpg", ".jpeg", ".svg"}:
+        return f"![{path.name}]({rel})"
+    return f"[{path.name}]({rel})"
+
+
+def _display_uri(uri: str) -> str:
+    """A SQLite URI inside the working directory as the relative ``sqlite:///mlflow.db`` a reader can reuse."""
+    prefix = "sqlite:///"
+    if uri.startswith(prefix):
+        path = Path(uri[len(prefix):])
+        try:
+            return prefix + path.relative_to(Path.cwd()).as_posix()
+        except ValueError:
+            return uri
+    return uri

@@ -1,0 +1,253 @@
+"""Run a study: expand, skip what already finished, launch the rest, record every outcome.
+
+``run_study`` is what ``study run`` calls:
+
+1. expand the study file into runs (variant x scene x seed) and compose every run's
+   config (``spec.plan``) - bad overrides stop here, before the store is touched;
+2. check the tracking store, skip every (study, variant, scene, seed, config_hash) already
+   FINISHED or claimed by a live worker of another invocation (``run.lease``);
+3. generate missing synthetic scenes, open one MLflow parent run, and launch the rest
+   through a Hydra launcher (``run.launchers``: basic, joblib for ``jobs > 1``, or
+   submitit's local and SLURM executors);
+4. each job runs a ``run.task.RunTask``: it claims, trains and records its child run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from ftgspp.errors import InputError
+from harness.run import lease
+from harness.run.launchers import check_launcher, check_launcher_args, launch, split_launcher_args
+from harness.run.scenes import Generator, ensure_scene, scene_lock
+from harness.run.task import JobInfo, RunTask, TrainFn
+from harness.spec.files import load_study
+from harness.spec.plan import PlannedRun, plan_runs
+from harness.spec.runs import Selection, command_line, describe_runs, expand
+from harness.spec.study import StudySpec
+from harness.tracking.conventions import scene_dataset, source_tags, ui_link
+from harness.tracking.provenance import git_sha
+from harness.tracking.records import RunRecord, load_runs, tracking_target
+from harness.tracking.store import Store, check_store
+
+OUT_ROOT = Path("outputs/studies")
+
+
+@dataclass
+class StudyOutcome:
+    """What one ``study run`` did."""
+
+    total: int
+    skipped: int
+    launched: int
+    finished: int = 0
+    failed: int = 0
+    diverged: int = 0
+    claimed_elsewhere: int = 0  # launched, but another invocation had claimed or finished it
+    parent_run_id: str = ""
+    results: list[dict[str, Any]] = field(default_factory=list)
+
+
+
+
+def pending(existing: list[RunRecord], planned: list[PlannedRun],
+            lease_s: float = lease.DEFAULT_LEASE_S) -> tuple[list[PlannedRun], list[RunRecord]]:
+    """(planned runs to launch, live claims of other invocations that are left to them),
+    given the study's ``existing`` child runs.
+
+    A run is launched unless it FINISHED or a live worker holds it; stale RUNNING runs are
+    taken over by the job that claims the run (``run.lease.acquire``), not here.
+    """
+    done = {r.key for r in existing if r.status == "FINISHED"}
+    live = {r.key: r for r in existing if lease.is_live(r, lease_s) and r.key not in done}
+    todo = [p for p in planned if p.key not in done and p.key not in live]
+    keys = {p.key for p in planned}
+    return todo, [r for k, r in live.items() if k in keys]
+
+
+def foreign_domain_notes(existing: list[RunRecord], planned: list[PlannedRun]) -> list[str]:
+    """One line per finished run in ``existing`` that counts as done here although its bits come
+    from another determinism domain than this machine would give it (or from no recorded one)."""
+    from ftgspp.determinism import expected_domain_id
+
+    by_key = {p.key: p for p in planned}
+    expected: dict[tuple[str, int, str], str | None] = {}
+    notes = []
+    for rec in existing:
+        p = by_key.get(rec.key)
+        if rec.status != "FINISHED" or p is None:
+            continue
+        settings = (p.params.get("determinism", "default"), int(p.params.get("threads", "0")),
+                    p.params.get("dispatch", "native"))
+        if settings not in expected:
+            expected[settings] = expected_domain_id(*settings)
+        here, got = expected[settings], rec.tags.get("determinism.id", "")
+        if here is not None and got != here:
+            notes.append(f"[resume] {p.spec.label}: finished in determinism domain {got or 'unrecorded'}, this machine"
+                         f" gives {here}; counted as done (its numbers need not match a run here bit for bit)")
+    return notes
+
+
+def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jobs: int, launcher: str,
+                 launcher_args: list[str], command: str, planned: list[PlannedRun],
+                 todo: list[PlannedRun]) -> tuple[str, str]:
+    """The invocation's parent run (tags, params, the study file); returns (run id, stamp)."""
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    tags = {
+        "study": study.name,
+        "profile": sel.profile,
+        "kind": "study",
+        "invocation": json.dumps({**asdict(sel), "jobs": jobs, "launcher": launcher,
+                                  "launcher_overrides": launcher_args}),
+        "command": command,
+        **source_tags(command),
+        "git_sha": git_sha(),
+        "n_runs": str(len(planned)),
+        "n_launched": str(len(todo)),
+    }
+    parent_id = store.create_run(exp_id, f"{study.name}-{sel.profile}-{stamp}", tags)
+    n_seeds = len({p.spec.seed for p in planned})
+    store.log_batch(parent_id, params={"profile": sel.profile, "jobs": jobs, "launcher": launcher,
+                                       "seeds": n_seeds, "base_seed": study.base_seed})
+    # the study's scenes as dataset inputs: the runs table shows them on the parent's row
+    scenes = {p.spec.scene.name: p for p in todo}.values()
+    store.log_inputs(parent_id, [scene_dataset(p.spec.scene.name, p.params["data.path"], p.params["data.format"],
+                                               p.spec.scene.synth) for p in scenes])
+    if study.path is not None:  # the study definition this invocation used
+        store.log_artifact(parent_id, study.path)
+    return parent_id, stamp
+
+
+def _tally(outcome: StudyOutcome, todo: list[PlannedRun], returns: list[Any]) -> None:
+    for run, ret in zip(todo, returns):
+        try:
+            res = ret.return_value
+        except Exception as exc:  # the task itself failed (e.g. a tracking store error)
+            res = {"label": run.spec.label, "status": "FAILED", "failure": "harness", "error": str(exc)}
+        outcome.results.append(res)
+        if res["status"] == "FINISHED":
+            outcome.finished += 1
+        elif res["status"] == "SKIPPED":
+            outcome.claimed_elsewhere += 1
+        else:
+            outcome.failed += 1
+            outcome.diverged += res.get("failure") == "diverged"
+
+
+def _tally_from_store(outcome: StudyOutcome, store: Store, experiment: str, study: str, parent_id: str,
+                      error: BaseException) -> None:
+    """Count the children of ``parent_id`` as stored: a job that died (killed, node lost,
+    time limit) makes submitit raise for the whole array, but every run recorded itself."""
+    for rec in load_runs(store, experiment, study):
+        if rec.tags.get("mlflow.parentRunId") != parent_id:
+            continue
+        res = {"label": rec.tags.get("mlflow.runName", ""), "run_id": rec.run_id, "status": rec.status,
+               "failure": rec.failure, "error": rec.error}
+        outcome.results.append(res)
+        outcome.finished += rec.status == "FINISHED"
+        outcome.failed += rec.status in ("FAILED", "KILLED")
+        outcome.diverged += rec.failure == "diverged"
+    lost = outcome.launched - len(outcome.results)
+    outcome.failed += max(0, lost)
+    print(f"[study] launcher: {type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
+          f" ({max(0, lost)} jobs left no finished record; their claims expire and the next `study run` retries them)",
+          flush=True)
+
+
+def run_study(
+    name: str,
+    sel: Selection,
+    *,
+    jobs: int = 1,
+    launcher: str = "basic",
+    lease_s: float | None = None,
+    studies_dir: Path | None = None,
+    out_root: Path = OUT_ROOT,
+    train_fn: TrainFn | None = None,
+    generate: Generator | None = None,
+    echo: Callable[[str], None] = print,
+) -> StudyOutcome:
+    """Run the missing or failed runs of study ``name``; see the module docstring."""
+    if jobs < 1:
+        raise InputError("--jobs", "must be at least 1")
+    try:
+        lease_s = lease.lease_seconds(lease_s)
+    except ValueError as exc:
+        raise InputError("--lease", str(exc)) from None
+    study = load_study(name, studies_dir)
+    command = command_line(name, sel, jobs, launcher)
+    run_overrides, launcher_args = split_launcher_args(sel.overrides)
+    sel = dataclasses.replace(sel, overrides=run_overrides)
+    planned = plan_runs(expand(study, sel))  # every bad input stops here ...
+    uri, exp_name = tracking_target(sel.overrides, planned[0].params, name)
+    check_launcher(launcher, uri)
+    check_launcher_args(launcher, launcher_args, Path(out_root).resolve())
+    check_store(uri)  # ... or here, before anything is written
+
+    store = Store(uri)
+    exp_id = store.experiment_id(exp_name)  # created once, before any worker starts
+    assert exp_id is not None
+    existing = load_runs(store, exp_name, name)
+    todo, elsewhere = pending(existing, planned, lease_s)
+    for line in foreign_domain_notes(existing, planned):
+        echo(line)
+    outcome = StudyOutcome(total=len(planned), skipped=len(planned) - len(todo), launched=len(todo))
+    n_done = outcome.skipped - len(elsewhere)
+    echo(f"{name} ({sel.profile}): {describe_runs([p.spec for p in planned])};"
+         f" {n_done} already finished, " + (f"{len(elsewhere)} running elsewhere, " if elsewhere else "")
+         + f"{len(todo)} to run"
+         + (f" with {jobs} parallel jobs" if jobs > 1 and todo else "")
+         + (f" through the {launcher} launcher" if launcher != "basic" and todo else ""))
+    for rec in elsewhere:
+        echo(f"  running elsewhere: {rec.tags.get('mlflow.runName', rec.key)} ({lease.describe(rec)})")
+    if not todo:
+        return outcome
+
+    for scene in {p.spec.scene.name: p.spec.scene for p in todo}.values():
+        with scene_lock(scene):  # another invocation may be generating it right now
+            ensure_scene(scene, generate, echo)
+    parent_id, stamp = _open_parent(store, exp_id, study, sel, jobs, launcher, launcher_args, command, planned, todo)
+    outcome.parent_run_id = parent_id
+    # absolute: submitit's folder lives under it and jobs on other nodes must find it
+    sweep_dir = (Path(out_root) / name / f"{stamp}-{parent_id[:8]}").resolve()
+    task = RunTask(
+        uri=uri,
+        experiment_id=exp_id,
+        parent_run_id=parent_id,
+        jobs=[JobInfo(p.spec.label, p.tags, p.config_hash, p.spec.scene.synth, p.params.get("threads", ""))
+              for p in todo],
+        progress_path=str(sweep_dir / "progress.jsonl"),
+        started_at=time.time(),
+        train_fn=train_fn,
+        lease_s=lease_s,
+        command=command,
+    )
+    # progress bars of parallel workers would interleave (progress is not part of the hash)
+    quiet = ["progress=false"] if jobs > 1 or launcher in ("local", "slurm") else []
+    job_overrides = [[*p.spec.overrides, *quiet, f"hydra.sweep.subdir={p.spec.label}"] for p in todo]
+    try:
+        returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=jobs, job_name=f"study_{name}",
+                         launcher=launcher, launcher_args=launcher_args)
+        _tally(outcome, todo, returns)
+    except Exception as exc:  # e.g. submitit's UncompletedJobError: a job died without returning
+        if launcher not in ("local", "slurm"):
+            store.terminate(parent_id, "FAILED", {"error": f"{type(exc).__name__}: {exc}"[:1000]})
+            raise
+        _tally_from_store(outcome, store, exp_name, name, parent_id, exc)
+    except BaseException as exc:
+        status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
+        store.terminate(parent_id, status, {"error": f"{type(exc).__name__}: {exc}"[:1000]})
+        raise
+    store.terminate(parent_id, "FINISHED", {"n_finished": str(outcome.finished), "n_failed": str(outcome.failed),
+                                            "n_diverged": str(outcome.diverged),
+                                            "n_claimed_elsewhere": str(outcome.claimed_elsewhere)})
+    elsewhere_txt = f", {outcome.claimed_elsewhere} claimed by other invocations" if outcome.claimed_elsewhere else ""
+    echo(f"{name}: {outcome.finished} finished, {outcome.failed} failed ({outcome.diverged} diverged),"
+         f" {outcome.skipped} skipped{elsewhere_txt}; parent run {parent_id} in {exp_name} at {uri}")
+    echo(f"browse: {ui_link(uri, exp_id)}")
+    return outcome

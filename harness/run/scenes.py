@@ -1,0 +1,90 @@
+"""Synthetic study scenes, generated on demand into ``data/synth/<name>``.
+
+A scene with ``synth: {preset, seed, layout, ...}`` is written by
+``ftgspp.data.synthetic.generate(out, layout, preset, seed, **extra)`` the first time a
+study needs it. A marker file records the arguments; a folder whose marker differs (the
+study file changed) is regenerated, one with the same marker is reused, and so is a folder
+without a marker that ``ftgspp synth`` wrote with the same arguments. Generation
+writes into a temporary sibling folder and renames it, so a killed run never leaves a
+half-written scene behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import fcntl
+import json
+import shutil
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from harness.spec.study import StudyScene
+
+MARKER = ".study_synth.json"
+# generate(out, layout, preset, seed, **extra)
+Generator = Callable[..., Any]
+
+
+def _generated_with(out: Path, args: dict[str, Any]) -> bool:
+    """Whether ``out`` holds a scene ``ftgspp synth`` wrote with exactly these arguments."""
+    meta_file = out / "gt" / "scene.json"
+    if not meta_file.is_file():
+        return False
+    try:
+        from ftgspp.data.synthetic import resolve_config
+
+        meta = json.loads(meta_file.read_text())
+        extra = {k: v for k, v in args.items() if k not in {"preset", "seed", "layout"}}
+        want = dataclasses.asdict(resolve_config(args["preset"], args["seed"], **extra))
+    except Exception:  # unreadable metadata or arguments: regenerate
+        return False
+    want = {k: list(v) if isinstance(v, tuple) else v for k, v in want.items()}
+    return meta.get("layout") == args["layout"] and meta.get("params") == want
+
+
+def _default_generator() -> Generator:
+    from ftgspp.data.synthetic import generate
+
+    return generate
+
+
+def ensure_scene(scene: StudyScene, generate: Generator | None = None, echo: Callable[[str], None] = print) -> bool:
+    """Make sure a synthetic scene exists; returns True if it was (re)generated."""
+    if scene.synth is None:
+        return False
+    out = Path(scene.synth_dir)
+    marker = out / MARKER
+    args = dict(scene.synth)
+    if marker.is_file() and json.loads(marker.read_text()) == args:
+        return False
+    if not marker.exists() and _generated_with(out, args):  # e.g. by `ftgspp synth` (make demo)
+        marker.write_text(json.dumps(args, sort_keys=True))
+        return False
+    echo(f"generating synthetic scene '{scene.name}' into {out} ({json.dumps(args, sort_keys=True)})")
+    tmp = out.with_name(out.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    extra = {k: v for k, v in args.items() if k not in {"preset", "seed", "layout"}}
+    (generate or _default_generator())(tmp, args["layout"], args["preset"], args["seed"], **extra)
+    (tmp / MARKER).write_text(json.dumps(args, sort_keys=True))
+    if out.exists():
+        shutil.rmtree(out)
+    tmp.rename(out)
+    return True
+
+
+@contextlib.contextmanager
+def scene_lock(scene: StudyScene) -> Iterator[None]:
+    """An exclusive ``fcntl`` lock on ``<scene folder>.lock`` (synthetic scenes only)."""
+    if scene.synth is None:
+        yield
+        return
+    lock = Path(scene.synth_dir).with_name(Path(scene.synth_dir).name + ".lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)

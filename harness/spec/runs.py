@@ -1,0 +1,118 @@
+"""Which runs an invocation asks for: ``Selection`` (profile, seeds, scenes, variants,
+overrides), ``expand`` into ``RunSpec``s (one per seed x scene x variant; run ``r`` uses seed
+``base_seed + r``) and the ``study run`` command line that reproduces it.
+"""
+
+from __future__ import annotations
+
+import shlex
+from dataclasses import dataclass, field
+
+from harness.spec.files import require
+from harness.spec.study import StudyScene, StudySpec
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One training run of a study: (variant, scene, seed) with its full override list."""
+
+    study: str
+    profile: str
+    variant: str
+    scene: StudyScene
+    seed: int
+    overrides: tuple[str, ...]
+
+    @property
+    def key(self) -> tuple[str, str, int]:
+        return (self.variant, self.scene.name, self.seed)
+
+    @property
+    def label(self) -> str:
+        return f"{self.variant}/{self.scene.name}/seed{self.seed}"
+
+
+
+@dataclass
+class Selection:
+    """What one invocation asks for on top of the study file."""
+
+    profile: str = "quick"
+    seeds: int | None = None  # None: the profile's count
+    scenes: list[str] = field(default_factory=list)  # empty: all
+    variants: list[str] = field(default_factory=list)  # empty: all
+    overrides: list[str] = field(default_factory=list)  # appended to every run
+
+
+def _pick(requested: list[str], available: list[str], what: str) -> list[str]:
+    for name in requested:
+        require(name in available, f"--{what}s {name}", f"unknown {what} (available: {', '.join(available)})")
+    return [a for a in available if not requested or a in requested]
+
+
+def expand(study: StudySpec, sel: Selection) -> list[RunSpec]:
+    """All runs of ``study`` for ``sel``: seed-major, then scene, then variant.
+
+    A scene may name its own seed count and the subset of variants run on it (ladder rungs
+    with fewer seeds, a tuning scene with its own sweep); ``--seeds`` sets every scene's.
+    """
+    prof = study.profile(sel.profile)
+    for o in sel.overrides:
+        require("=" in o, f"override '{o}'", "expected key=value")
+        require(not o.lstrip("+~").startswith("seed="), f"override '{o}'",
+                 "seeds come from --seeds and the study's base_seed")
+    variants = _pick(sel.variants, list(prof.variants), "variant")
+    scene_names = _pick(sel.scenes, [s.name for s in prof.scenes], "scene")
+    scenes = [s for s in prof.scenes if s.name in scene_names]
+    require(sel.seeds is None or sel.seeds >= 1, "--seeds", "must be at least 1")
+
+    def seeds_of(scene: StudyScene) -> int:
+        return sel.seeds if sel.seeds is not None else scene.seeds or prof.seeds
+
+    runs = []
+    for r in range(max(seeds_of(s) for s in scenes)):
+        seed = study.base_seed + r
+        for scene in scenes:
+            if r >= seeds_of(scene):
+                continue
+            for variant in variants:
+                if scene.variants and variant not in scene.variants:
+                    continue
+                overrides = (
+                    *prof.overrides,
+                    *scene.data_overrides(),
+                    *prof.variants[variant],
+                    *sel.overrides,
+                    f"seed={seed}",
+                )
+                runs.append(RunSpec(study.name, prof.name, variant, scene, seed, overrides))
+    require(bool(runs), f"--scenes {','.join(scene_names)} --variants {','.join(variants)}",
+             "no run of the study has this scene and variant (a scene may run only some variants: study list)")
+    return runs
+
+
+def describe_runs(runs: list[RunSpec]) -> str:
+    """``"12 runs = 2 variants x 3 scenes x 2 seeds"``, or ``"... up to ..."`` when scenes
+    carry their own seed counts or variant subsets and the runs are not the full product."""
+    if not runs:
+        return "0 runs"
+    n_var, n_scene, n_seed = (len(set(x)) for x in zip(*(r.key for r in runs)))
+    full = n_var * n_scene * n_seed == len(runs)
+    return (f"{len(runs)} runs = {n_var} variants x {n_scene} scenes x {n_seed} seeds" if full else
+            f"{len(runs)} runs over {n_var} variants x {n_scene} scenes, up to {n_seed} seeds (per-scene seeds and variants)")
+
+
+def command_line(study: str, sel: Selection, jobs: int = 1, launcher: str = "basic") -> str:
+    """The ``study run`` command that reproduces an invocation."""
+    parts = ["study", "run", study, "--profile", sel.profile]
+    if launcher != "basic":
+        parts += ["--launcher", launcher]
+    if sel.seeds is not None:
+        parts += ["--seeds", str(sel.seeds)]
+    if sel.scenes:
+        parts += ["--scenes", ",".join(sel.scenes)]
+    if sel.variants:
+        parts += ["--variants", ",".join(sel.variants)]
+    if jobs > 1:
+        parts += ["--jobs", str(jobs)]
+    return " ".join(shlex.quote(p) for p in [*parts, *sel.overrides])

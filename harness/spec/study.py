@@ -1,0 +1,153 @@
+"""The study file as data: the dataclasses ``spec.files`` fills from ``studies/<name>.yaml``.
+
+A study file is plain data (see ``studies/secret5.yaml``): a question, named variants
+(lists of Hydra override strings, one of them the baseline), per-profile scenes, seed
+counts, overrides, expected runtime and the exact command, plus what the report shows.
+Scenes are either synthetic (``synth: {preset, seed, layout, n_cameras, color_shift, ...}``:
+arguments of ``ftgspp.data.synthetic.generate``, generated on demand into
+``data/synth/<name>``) or given by overrides (``data.path=${oc.env:DYNERF_ROOT}/...``). A
+study may list ``claims:`` (the paper's statements as data, see ``ClaimSpec``) and
+``variance_components:`` (``VarianceSpec``).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ftgspp.errors import InputError
+
+PROFILES = ("quick", "paper", "smoke")
+TINY_SYNTH = {"width": 64, "height": 48, "n_frames": 6, "n_cameras": 5}
+SYNTH_ROOT = Path("data/synth")
+# the smoke scenes are generated at 64x48 already: train them at full resolution
+SMOKE_OVERRIDES = ("profile=smoke", "data.downsample=1")
+TABLE_LAYOUTS = ("variants_x_scenes", "metrics_x_scenes", "variants_x_metrics")
+PLOTS = ("strip", "speed_accuracy", "stability")
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+# claims: test kinds, the expectations each allows, and the metrics a claim may name
+CLAIM_TESTS = {"mean": ("higher", "lower"), "variance": ("higher", "lower"),
+               "interaction": ("higher", "lower"), "correlation": ("weak",)}
+CLAIM_METRICS = (
+    "psnr", "ssim1", "ssim2", "dssim1", "dssim2", "lpips_alex", "lpips_vgg", "lpips_alex_01", "lpips_vgg_01",
+    "train_seconds", "iters_per_second", "peak_rss_mb", "n_gaussians",
+    # diagnostics (ftgspp.diagnostics via the trainer) and the report's per-run convention gaps
+    "lifetime_long_on_static", "lifetime_short_on_dynamic", "lifetime_median_fraction",
+    "lifetime_partition_contrast", "lifetime_short_share_dynamic", "lifetime_short_share_static",
+    "motion_epe_dynamic", "motion_leak_static", "motion_role_switch", "xt_slice_mae",
+    "flicker_static", "flicker_static_gt",
+    "gap_lpips_alex", "gap_lpips_vgg", "gap_ssim", "gap_dssim",
+)
+
+
+@dataclass(frozen=True)
+class StudyScene:
+    """One scene (or difficulty cell) of a profile."""
+
+    name: str
+    synth: dict[str, Any] | None = None  # generator args: preset, seed, layout, width, ...
+    overrides: tuple[str, ...] = ()  # e.g. data.path=..., lr.scale=3
+    label: str = ""  # human-readable column title (default: name)
+    synth_dir: str = ""  # where the synthetic scene lives, relative to the working directory
+    seeds: int | None = None  # this scene's seed count (default: the profile's; --seeds wins)
+    variants: tuple[str, ...] = ()  # the variants run on this scene (default: all)
+    # stability ladders this cell is a rung of: ladder name -> rung value (e.g. {lr_scale: 3})
+    rungs: tuple[tuple[str, float], ...] = ()
+
+    @property
+    def title(self) -> str:
+        return self.label or self.name
+
+    def data_overrides(self) -> list[str]:
+        """Overrides that select this scene's data and conditions."""
+        path = [f"data.path={self.synth_dir}"] if self.synth is not None else []
+        return path + list(self.overrides)
+
+
+@dataclass(frozen=True)
+class ProfileSpec:
+    """How a study runs under one profile (quick, paper, smoke)."""
+
+    name: str
+    seeds: int
+    overrides: tuple[str, ...]
+    scenes: tuple[StudyScene, ...]
+    variants: dict[str, tuple[str, ...]]
+    expected_runtime: str = ""
+    command: str = ""
+    baseline: str = ""
+    jobs: int = 1  # parallel runs when `study run` is given no --jobs
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """Which tables the report writes."""
+
+    layout: str = "variants_x_scenes"
+    metrics: tuple[str, ...] = ("psnr",)  # fnmatch patterns (e.g. lpips_*)
+
+
+@dataclass(frozen=True)
+class ClaimSpec:
+    """One statement of the paper, as a test on the study's runs (``harness.claims``).
+
+    ``test``: ``mean`` (variant ``a`` against ``b``, or against zero when ``b`` is empty),
+    ``variance`` (spread of ``a`` against ``b``), ``interaction`` (the ``a`` − ``b`` difference
+    on ``scenes[0]`` against the one on ``scenes[1]``) or ``correlation`` (``metric`` against
+    ``versus`` over every run: ``weak`` means |r| < ``threshold``). ``expect`` is the
+    direction of the first quantity relative to the second (``higher`` / ``lower``).
+    ``scenes``: the scenes pooled (empty: every scene with runs). ``pair``: ``seed`` pairs
+    runs of ``a`` and ``b`` that share (scene, seed); ``none`` compares them unpaired (Welch).
+    """
+
+    id: str
+    statement: str
+    metric: str
+    test: str
+    expect: str
+    a: str = ""
+    b: str = ""
+    scenes: tuple[str, ...] = ()
+    pair: str = "seed"
+    versus: str = ""
+    threshold: float = 0.5
+    paper_number: str | None = None
+
+
+@dataclass(frozen=True)
+class StudySpec:
+    """A parsed study file."""
+
+    name: str
+    question: str
+    baseline: str  # default baseline variant; a profile may name its own
+    base_seed: int
+    metrics: tuple[str, ...]
+    table: TableSpec
+    plots: tuple[str, ...]
+    diagnostics: tuple[str, ...]
+    profiles: dict[str, ProfileSpec]
+    notes: str = ""
+    path: Path | None = None
+    claims: tuple[ClaimSpec, ...] = ()
+    variance: "VarianceSpec | None" = None
+
+    def profile(self, name: str) -> ProfileSpec:
+        """The named profile, or an InputError listing the available ones."""
+        if name not in self.profiles:
+            raise InputError(f"--profile {name}", f"study '{self.name}' has profiles {sorted(self.profiles)}")
+        return self.profiles[name]
+
+
+@dataclass(frozen=True)
+class VarianceSpec:
+    """Which variants isolate each source of run-to-run spread (``harness.variance``)."""
+
+    metric: str
+    optimisation: str  # fixed initialisation, the seed varies the optimisation only
+    initialisation: str  # the initialisation is re-drawn per seed too
+    hardware: tuple[str, ...]  # same seed and initialisation, another CPU kernel dispatch each
+
+

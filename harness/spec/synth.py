@@ -1,0 +1,25 @@
+"""Check a study scene's synthetic generator arguments without rendering anything."""
+
+from __future__ import annotations
+
+from ftgspp.errors import InputError
+from harness.spec.study import StudyScene
+
+
+def validate_synth(scene: StudyScene) -> None:
+    """Check a synthetic scene's generator arguments without rendering (InputError if bad)."""
+    if scene.synth is None:
+        return
+    from ftgspp.data.synthetic import LAYOUTS, resolve_config
+
+    args = dict(scene.synth)
+    where = f"scene '{scene.name}' synth"
+    if args.get("layout") not in LAYOUTS:
+        raise InputError(where, f"unknown layout '{args.get('layout')}' (choose from {', '.join(LAYOUTS)})")
+    extra = {k: v for k, v in args.items() if k not in {"preset", "seed", "layout"}}
+    try:
+        resolve_config(args["preset"], args["seed"], **extra)
+    except InputError as err:
+        raise InputError(where, str(err)) from None
+    except TypeError as err:
+        raise InputError(where, str(err)) from None

@@ -1,0 +1,111 @@
+"""MLflow's own conventions for a run, so its UI shows what users expect.
+
+- ``source_tags``: ``mlflow.source.name`` (the ``study run`` command), ``mlflow.source.type``
+  (``JOB`` under SLURM, else ``LOCAL``), ``mlflow.source.git.commit`` and ``mlflow.user``;
+  the UI's Source and Version columns come from them.
+- ``scene_dataset``: the run's scene as an MLflow dataset input (name, digest = a fingerprint
+  of the scene, source = the synthetic generator's arguments or the data folder, profile =
+  format and path), so runs can be grouped by dataset.
+- ``ui_link``: where the MLflow UI shows an experiment's training runs;
+- ``system_metrics``: MLflow's own ``SystemMetricsMonitor`` (``system/cpu_utilization_percentage``,
+  ``system/system_memory_usage_megabytes``, ...) sampling every 15 s; a no-op when psutil
+  is missing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import getpass
+import hashlib
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any, Iterator
+
+from harness.tracking.provenance import git_sha
+
+SYSTEM_METRICS_INTERVAL_S = 15.0
+SYNTH_GENERATOR = "ftgspp.data.synthetic.generate"
+
+
+def source_tags(command: str) -> dict[str, str]:
+    """Standard ``mlflow.source.*`` / ``mlflow.user`` tags of a run started by ``command``."""
+    sha = git_sha()
+    tags = {
+        "mlflow.source.name": command,
+        "mlflow.source.type": "JOB" if os.environ.get("SLURM_JOB_ID") else "LOCAL",
+    }
+    if sha != "unknown":
+        tags["mlflow.source.git.commit"] = sha.removesuffix("-dirty")
+    with contextlib.suppress(Exception):  # no user name in some containers
+        tags["mlflow.user"] = getpass.getuser()
+    return tags
+
+
+def folder_fingerprint(path: Path) -> str:
+    """16 hex digits from the relative names and sizes of every file under ``path``."""
+    h = hashlib.sha256()
+    if path.is_dir():
+        for root, dirs, files in os.walk(path):
+            dirs.sort()
+            for name in sorted(files):
+                f = Path(root) / name
+                h.update(f"{f.relative_to(path).as_posix()}\0{f.stat().st_size}\n".encode())
+    return h.hexdigest()[:16]
+
+
+def scene_dataset(name: str, data_path: str, data_format: str, synth: dict[str, Any] | None) -> Any:
+    """A ``DatasetInput`` for the run's scene (``mlflow.data.context=train``).
+
+    A synthetic scene is identified by its generator arguments (the generator is
+    deterministic), a real one by its files' names and sizes.
+    """
+    from mlflow.entities import Dataset, DatasetInput, InputTag
+
+    if synth is not None:
+        args = json.dumps(synth, sort_keys=True)
+        digest = hashlib.sha256(args.encode()).hexdigest()[:16]
+        source_type, source = "synthetic", json.dumps({"generator": SYNTH_GENERATOR, "args": synth}, sort_keys=True)
+        fmt = str(synth.get("layout", data_format))
+    else:
+        digest = folder_fingerprint(Path(data_path))
+        source_type, source = "local", json.dumps({"uri": str(Path(data_path).resolve())})
+        fmt = data_format
+    profile = json.dumps({"format": fmt, "path": data_path})
+    dataset = Dataset(name=name, digest=digest, source_type=source_type, source=source, profile=profile)
+    return DatasetInput(dataset=dataset, tags=[InputTag(key="mlflow.data.context", value="train")])
+
+
+@contextlib.contextmanager
+def system_metrics(run_id: str, tracking_uri: str) -> Iterator[None]:
+    """Sample CPU, memory, disk and network into the run while the block runs."""
+    monitor = None
+    try:
+        import psutil  # noqa: F401  MLflow's CPU monitor needs it
+        from mlflow.system_metrics.system_metrics_monitor import SystemMetricsMonitor
+
+        logging.getLogger("mlflow.system_metrics").setLevel(logging.WARNING)
+        monitor = SystemMetricsMonitor(run_id, sampling_interval=SYSTEM_METRICS_INTERVAL_S,
+                                       tracking_uri=tracking_uri)
+        monitor.start()
+    except Exception:  # psutil missing or the monitor cannot start: training goes on without it
+        monitor = None
+    try:
+        yield
+    finally:
+        if monitor is not None:
+            monitor.finish()
+
+
+def ui_link(uri: str, experiment_id: str) -> str:
+    """Where the experiment's runs table is in the MLflow UI.
+
+    MLflow 3.17's UI opens every experiment in the GenAI view unless the browser chose
+    "Model training" before (it ignores ``mlflow.experimentKind`` there); the
+    ``workflowType`` parameter selects the training-runs view.
+    """
+    page = f"#/experiments/{experiment_id}/runs?workflowType=machine_learning"
+    if uri.startswith(("http://", "https://")):
+        return f"{uri.rstrip('/')}/{page}"
+    return f"mlflow ui --backend-store-uri {uri}, then http://127.0.0.1:5000/{page}"

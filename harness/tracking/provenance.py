@@ -1,0 +1,55 @@
+"""Where a run came from: git commit of the code, the resolved device and render backend.
+
+Read-only: ``git rev-parse`` / ``git status``; "unknown" outside a git checkout.
+"""
+
+from __future__ import annotations
+
+import functools
+import subprocess
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@functools.lru_cache(maxsize=1)
+def git_sha() -> str:
+    """Commit of the harness code, with ``-dirty`` if tracked files changed since."""
+    try:
+        sha = subprocess.run(
+            ["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
+        )
+        if sha.returncode != 0:
+            return "unknown"
+        dirty = subprocess.run(
+            ["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def resolve_device(device: str) -> str:
+    """``auto`` -> ``cuda`` when a GPU is visible, else ``cpu``; anything else unchanged."""
+    if device != "auto":
+        return device
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def resolve_backend(backend: str, device: str) -> str:
+    """The render backend ``auto`` picks on ``device`` (as the trainer will); else unchanged."""
+    if backend != "auto":
+        return backend
+    try:
+        import torch
+
+        from ftgspp.render import resolve_backend as pick
+
+        return pick(backend, torch.device(device))
+    except Exception:  # a backend that cannot even be probed: record what was asked
+        return backend
