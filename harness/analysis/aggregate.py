@@ -19,16 +19,11 @@ from scipy import stats
 
 AVERAGE = "average"
 KEY_COLUMNS = ["variant", "scene", "seed", "config_hash"]
-LOWER_IS_BETTER = ("lpips*", "dssim*", "train_seconds", "peak_rss_mb", "n_gaussians", "motion_*", "loss*", "epe*")
 EXTRA_PARAMS = ("budget", "iterations", "lr.scale")
 # run tags that say which determinism domain a run's bits come from (ftgspp/determinism.py)
 DOMAIN_COLUMNS = {"domain": "determinism.id", "determinism": "determinism.mode",
                   "cpu_capability": "determinism.torch_cpu_capability", "cpu_model": "determinism.cpu_model",
                   "torch_threads": "determinism.torch_threads"}
-
-
-def lower_is_better(metric: str) -> bool:
-    return any(fnmatch.fnmatch(metric, p) for p in LOWER_IS_BETTER)
 
 
 def match_metrics(patterns: list[str] | tuple[str, ...], available: list[str]) -> list[str]:
@@ -224,18 +219,3 @@ def domains(df: pd.DataFrame) -> pd.DataFrame:
     per_cell = ok.groupby(["variant", "scene"]).domain.nunique() if len(ok) else pd.Series(dtype=int)
     out.attrs["mixed_cells"] = [f"{v}/{s}" for (v, s), n in per_cell.items() if n > 1]
     return out
-
-
-# Paired per-run differences between conventions, tabulated by the metrics_x_scenes layout.
-CONVENTION_GAPS = {
-    "gap_lpips_alex": ("lpips_alex_01", "lpips_alex"),
-    "gap_lpips_vgg": ("lpips_vgg_01", "lpips_vgg"),
-    "gap_ssim": ("ssim2", "ssim1"),
-    "gap_dssim": ("dssim2", "dssim1"),
-}
-
-
-def convention_gaps(df: pd.DataFrame) -> pd.DataFrame:
-    """``df`` with a ``gap_*`` column per convention pair both of whose metrics it has (per run)."""
-    return df.assign(**{g: df[a] - df[b] for g, (a, b) in CONVENTION_GAPS.items()
-                        if a in df.columns and b in df.columns})

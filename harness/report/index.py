@@ -16,11 +16,11 @@ from typing import Callable
 import pandas as pd
 
 from harness.analysis import claims as claims_mod
-from harness.analysis.aggregate import convention_gaps
 from harness.report.claims import VERDICT_MARK, effect_text, needed_text
 from harness.report.fmt import p_text, text
 from harness.report.results import collect
 from harness.spec.files import list_studies
+from harness.spec.metrics import add_differences
 
 CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per scene (PSNR vs train time and"
                                                     " #Gaussians, Pareto fronts)"),
@@ -82,7 +82,7 @@ def collect_study_claims(name: str, studies_dir: Path | None = None) -> StudyCla
     n_done = int((data.df.status == "FINISHED").sum())
     if n_done == 0:
         return None
-    frame = claims_mod.evaluate(convention_gaps(data.df), data.study.claims)
+    frame = claims_mod.evaluate(add_differences(data.df), data.study.claims)
     report = (Path(name) / "index.md").as_posix()
     return StudyClaims(name, data.study.question, frame, report, n_done, ", ".join(data.code_versions()))
 

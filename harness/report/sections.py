@@ -26,6 +26,7 @@ from harness.analysis import aggregate, claims, ladders, speed_accuracy, varianc
 from harness.report import claims as claims_report, ladders as ladders_report, plots, tables
 from harness.report.fmt import fixed
 from harness.report.results import ReportData
+from harness.spec import metrics as registry
 
 
 @dataclass
@@ -63,8 +64,8 @@ def build_tables(data: ReportData) -> tuple[list[tables.Table], dict[str, pd.Dat
     labels = data.labels()
     layout = data.study.table.layout
     if layout == "metrics_x_scenes":
-        gap_df = aggregate.convention_gaps(data.df)
-        gaps = {g: aggregate.summarize(gap_df, g, baseline) for g in aggregate.CONVENTION_GAPS if g in gap_df.columns}
+        gap_df = registry.add_differences(data.df)
+        gaps = {g: aggregate.summarize(gap_df, g, baseline) for g in registry.differences() if g in gap_df.columns}
         tabs = [tables.metrics_x_scenes(summaries, baseline, scenes, labels, data.study.name)]
         if gaps:
             gap_table = tables.metrics_x_scenes(gaps, baseline, scenes, labels, f"{data.study.name}-gaps")
@@ -150,7 +151,7 @@ def claims_section(data: ReportData, out: Path) -> Section | None:
     """The study's claims tested on its runs (``claims.csv``, a scatter per correlation claim)."""
     if not data.study.claims:
         return None
-    frame = claims.evaluate(aggregate.convention_gaps(data.df), data.study.claims)
+    frame = claims.evaluate(registry.add_differences(data.df), data.study.claims)
     frame.to_csv(out / "claims.csv", index=False)
     md = claims_report.claims_markdown(frame)
     for c, r in zip(data.study.claims, frame.effect):

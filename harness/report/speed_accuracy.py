@@ -9,7 +9,7 @@ from itertools import combinations
 import pandas as pd
 
 from harness.analysis.speed_accuracy import per_scene, smallest_per_scene
-from harness.report.tables import PRETTY
+from harness.spec.metrics import label
 
 
 def _pm(mean: float, ci: float, digits: int = 2) -> str:
@@ -61,7 +61,7 @@ def pair_sentences(chosen: pd.DataFrame) -> list[str]:
 
 def markdown(chosen: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr") -> str:
     """Per-scene table of ``smallest_per_scene`` followed by one sentence per scene pair."""
-    name = PRETTY.get(metric, metric)
+    name = label(metric)
     lines = [f"| Scene | Smallest budget | Iterations | {name} (mean ± 95% CI) | Best variant | Best {name} |"
              f" Gap to best (± 95% CI) | Within {tol_db:g} dB settled? |",
              "|---|---:|---:|---:|---|---:|---:|---|"]
@@ -81,7 +81,7 @@ def report_markdown(df: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr")
     chosen = smallest_per_scene(sa, df, tol_db, metric)
     lines = [f"### Smallest budget within {tol_db:g} dB of the best, per scene", "",
              f"Per scene, the variant with the smallest Gaussian budget (then fewest iterations, then least"
-             f" time) whose mean {PRETTY.get(metric, metric)} is within {tol_db:g} dB of that scene's best."
+             f" time) whose mean {label(metric)} is within {tol_db:g} dB of that scene's best."
              " Gap = best mean − chosen mean, 95% CI from a Welch t-interval over the two variants' runs;"
              f" when it reaches {tol_db:g} dB, the runs cannot tell whether the budget is enough.", "",
              markdown(chosen, tol_db, metric)]

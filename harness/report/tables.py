@@ -16,33 +16,19 @@ from dataclasses import dataclass, field
 
 import pandas as pd
 
-from harness.analysis.aggregate import AVERAGE, lower_is_better
-
-DECIMALS = {"psnr": 2, "train_seconds": 1, "iters_per_second": 1, "peak_rss_mb": 0, "n_gaussians": 0}
-PRETTY = {"psnr": "PSNR", "ssim1": "SSIM (data range 1)", "ssim2": "SSIM (data range 2)",
-          "dssim1": "DSSIM (data range 1)", "dssim2": "DSSIM (data range 2)",
-          "lpips_alex": "LPIPS-Alex ([-1,1] input)", "lpips_vgg": "LPIPS-VGG ([-1,1] input)",
-          "lpips_alex_01": "LPIPS-Alex ([0,1] input, 3DGS convention)",
-          "lpips_vgg_01": "LPIPS-VGG ([0,1] input, 3DGS convention)",
-          "train_seconds": "train time (s)", "iters_per_second": "iterations/s",
-          "peak_rss_mb": "peak RSS (MB)", "n_gaussians": "#Gaussians",
-          "gap_lpips_alex": "LPIPS-Alex: [0,1] − [-1,1] input", "gap_lpips_vgg": "LPIPS-VGG: [0,1] − [-1,1] input",
-          "gap_ssim": "SSIM: data range 2 − 1", "gap_dssim": "DSSIM: data range 2 − 1"}
+from harness.analysis.aggregate import AVERAGE
+from harness.spec import metrics
+from harness.spec.metrics import lower_is_better
 
 
 def decimals(metric: str) -> int:
-    if metric in DECIMALS:
-        return DECIMALS[metric]
-    if metric.startswith(("ssim", "dssim", "lpips", "gap_")):
-        return 4
-    return 3
+    """Decimals a table prints for ``metric`` (the metric registry)."""
+    return metrics.decimals(metric)
 
 
 def pretty(metric: str) -> str:
-    if metric.startswith("gap_"):  # a difference between conventions: no better direction
-        return PRETTY.get(metric, metric)
-    arrow = "↓" if lower_is_better(metric) else "↑"
-    return f"{PRETTY.get(metric, metric)} {arrow}"
+    """Label and direction arrow of ``metric`` (the metric registry)."""
+    return metrics.title(metric)
 
 
 @dataclass

@@ -1,7 +1,11 @@
 """Read and validate ``studies/<name>.yaml`` into a ``StudySpec``.
 
-``load_study(name)`` parses the file; every problem is one ``InputError`` naming the key
-(``study run`` prints it as one line and exits 2). A profile's ``scenes`` may name a shared
+``load_study(name)`` reads the file; ``spec.study_file.read`` checks its structure and types
+against the dataclass schema, then ``parse_study`` checks what types cannot (names that must
+refer to variants, scenes, metrics and ladders; allowed values) and builds the spec. Every
+problem is one ``InputError`` naming the key (``study run`` prints it as one line and exits 2).
+A rung of a stability ladder sets its override or generator argument from the profile's
+``ladders:`` entry, so a rung's value is written once. A profile's ``scenes`` may name a shared
 set in ``studies/_scene_sets.yaml``. The ``smoke`` profile is derived from ``quick`` when a
 study does not define one: ``profile=smoke`` (at full resolution), one seed and tiny
 synthetic scenes (64x48 pixels, 6 frames, 5 cameras).
@@ -17,8 +21,9 @@ from typing import Any
 import yaml
 
 from ftgspp.errors import InputError
+from harness.spec import study_file
+from harness.spec.metrics import claimable
 from harness.spec.study import (
-    CLAIM_METRICS,
     CLAIM_TESTS,
     NAME_PATTERN,
     PLOTS,
@@ -34,6 +39,7 @@ from harness.spec.study import (
     TableSpec,
     VarianceSpec,
 )
+from harness.spec.study_file import ClaimFile, LadderFile, ProfileFile, SceneFile, VarianceFile
 
 STUDIES_DIR = Path(os.environ.get("FTGSPP_STUDIES", Path(__file__).resolve().parents[2] / "studies"))
 SCENE_SETS_FILE = "_scene_sets.yaml"
@@ -70,75 +76,90 @@ def require(cond: bool, where: str, problem: str) -> None:
         raise InputError(where, problem)
 
 
-def _str_list(value: Any, where: str) -> tuple[str, ...]:
-    value = [] if value is None else value
-    require(isinstance(value, list) and all(isinstance(v, str) for v in value), where, "must be a list of strings")
-    return tuple(value)
+def _name(value: str, where: str, what: str) -> None:
+    require(bool(NAME_PATTERN.match(value)), where, f"bad {what} name '{value}'")
 
 
-def _parse_variants(raw: Any, where: str) -> dict[str, tuple[str, ...]]:
-    require(isinstance(raw, dict) and raw, where, "must map variant names to override lists")
-    out = {}
-    for name, overrides in raw.items():
-        require(isinstance(name, str) and bool(NAME_PATTERN.match(name)), f"{where}.{name}", "bad variant name")
-        out[name] = _str_list(overrides, f"{where}.{name}")
-    return out
+def _variants(raw: dict[str, list[str]], where: str) -> dict[str, tuple[str, ...]]:
+    require(bool(raw), where, "must map variant names to override lists")
+    for name in raw:
+        _name(name, f"{where}.{name}", "variant")
+    return {name: tuple(overrides) for name, overrides in raw.items()}
 
 
-def _parse_scene(raw: Any, where: str, profile: str) -> StudyScene:
-    require(isinstance(raw, dict) and "name" in raw, where, "a scene needs at least a name")
-    name = str(raw["name"])
-    require(bool(NAME_PATTERN.match(name)), where, f"bad scene name '{name}'")
-    synth = raw.get("synth")
-    require(synth is None or isinstance(synth, dict), f"{where}.synth", "must be a mapping of generator args")
-    overrides = _str_list(raw.get("overrides"), f"{where}.overrides")
+def _rung_settings(raw: SceneFile, ladders: dict[str, LadderFile], where: str
+                   ) -> tuple[tuple[str, ...], dict[str, Any]]:
+    """The overrides and generator arguments the scene's rungs set (``LadderFile``)."""
+    overrides: list[str] = []
+    synth: dict[str, Any] = {}
+    for ladder, value in raw.rungs.items():
+        lad = ladders.get(ladder)
+        if lad is None or lad.base is not None and value == lad.base:
+            continue
+        if lad.override:
+            key = lad.override
+            require(not any(o.split("=", 1)[0].lstrip("+~") == key for o in raw.overrides), f"{where}.overrides",
+                    f"'{key}' is set by the rung {ladder}: {value:g} (profile ladders), not here")
+            overrides.append(f"{key}={value * lad.times!r}")
+        else:
+            require(lad.synth not in (raw.synth or {}), f"{where}.synth",
+                    f"'{lad.synth}' is set by the rung {ladder}: {value:g} (profile ladders), not here")
+            synth[lad.synth] = _synth_value(lad.synth, value * lad.times, f"{where}.rungs.{ladder}")
+    return tuple(overrides), synth
+
+
+def _synth_value(field: str, value: float, where: str) -> int | float:
+    """``value`` as the synthetic generator's ``field`` type (``SynthConfig``: int or float)."""
+    import dataclasses
+
+    from ftgspp.data.synthetic import SynthConfig
+
+    types = {f.name: f.type for f in dataclasses.fields(SynthConfig)}
+    require(field in types, where, f"'{field}' is not a synthetic scene argument")
+    if "int" in str(types[field]):
+        require(float(value).is_integer(), where, f"{field} needs a whole number, not {value:g}")
+        return int(value)
+    return float(value)
+
+
+def _scene(raw: SceneFile, where: str, profile: str, ladders: dict[str, LadderFile]) -> StudyScene:
+    _name(raw.name, where, "scene")
+    require(raw.seeds is None or raw.seeds >= 1, f"{where}.seeds", "must be a positive integer")
+    rung_overrides, rung_synth = _rung_settings(raw, ladders, where)
+    overrides = (*raw.overrides, *rung_overrides)
+    synth = None if raw.synth is None and not rung_synth else {**(raw.synth or {}), **rung_synth}
     require(synth is not None or bool(overrides), where, "needs synth args or data overrides")
     synth_dir = ""
     if synth is not None:
         synth = {"preset": "studio", "seed": 0, "layout": "dynerf", **synth}
         suffix = "-smoke" if profile == "smoke" else ""
-        synth_dir = (SYNTH_ROOT / f"{name}{suffix}").as_posix()
-    seeds = raw.get("seeds")
-    require(seeds is None or (isinstance(seeds, int) and seeds >= 1), f"{where}.seeds", "must be a positive integer")
-    variants = _str_list(raw.get("variants"), f"{where}.variants")
-    rungs_raw = raw.get("rungs") or {}
-    require(isinstance(rungs_raw, dict) and all(isinstance(k, str) and isinstance(v, (int, float))
-                                                  for k, v in rungs_raw.items()),
-             f"{where}.rungs", "must map ladder names to numbers (e.g. {lr_scale: 3})")
-    rungs = tuple((k, float(v)) for k, v in rungs_raw.items())
-    return StudyScene(name, synth, overrides, str(raw.get("label", "")), synth_dir, seeds, variants, rungs)
+        synth_dir = (SYNTH_ROOT / f"{raw.name}{suffix}").as_posix()
+    rungs = tuple((k, float(v)) for k, v in raw.rungs.items())
+    return StudyScene(raw.name, synth, overrides, raw.label, synth_dir, raw.seeds, tuple(raw.variants), rungs)
 
 
-def _parse_profile(name: str, raw: Any, where: str, variants: Any, sets: dict[str, Any]) -> ProfileSpec:
-    require(isinstance(raw, dict), where, "must be a mapping")
-    scenes_raw = raw.get("scenes")
-    if isinstance(scenes_raw, str):
-        require(scenes_raw in sets, f"{where}.scenes", f"unknown scene set '{scenes_raw}' ({SCENE_SETS_FILE})")
-        scenes_raw = sets[scenes_raw]
-    require(isinstance(scenes_raw, list) and scenes_raw, f"{where}.scenes", "must be a non-empty list")
-    scenes = tuple(_parse_scene(s, f"{where}.scenes[{i}]", name) for i, s in enumerate(scenes_raw))
+def _profile(name: str, raw: ProfileFile, where: str, variants: dict[str, tuple[str, ...]]) -> ProfileSpec:
+    require(bool(raw.scenes), f"{where}.scenes", "must be a non-empty list")
+    for lname, lad in raw.ladders.items():
+        require(bool(lad.override) != bool(lad.synth), f"{where}.ladders.{lname}",
+                "names either an override or a synth argument")
+    for s in raw.scenes:
+        for lname in s.rungs:
+            require(lname in raw.ladders or not raw.ladders, f"{where}.scenes.{s.name}.rungs",
+                    f"unknown ladder '{lname}' (profile ladders: {', '.join(raw.ladders)})")
+    scenes = tuple(_scene(s, f"{where}.scenes[{i}]", name, raw.ladders) for i, s in enumerate(raw.scenes))
     names = [s.name for s in scenes]
     require(len(set(names)) == len(names), f"{where}.scenes", "scene names must be unique")
-    seeds = raw.get("seeds", 1)
-    require(isinstance(seeds, int) and seeds >= 1, f"{where}.seeds", "must be a positive integer")
-    jobs = raw.get("jobs", 1)
-    require(isinstance(jobs, int) and jobs >= 1, f"{where}.jobs", "must be a positive integer")
-    prof_variants = _parse_variants(raw["variants"], f"{where}.variants") if "variants" in raw else variants
+    require(raw.seeds >= 1, f"{where}.seeds", "must be a positive integer")
+    require(raw.jobs >= 1, f"{where}.jobs", "must be a positive integer")
+    prof_variants = _variants(raw.variants, f"{where}.variants") if raw.variants is not None else variants
     for s in scenes:
         for v in s.variants:
             require(v in prof_variants, f"{where}.scenes.{s.name}.variants",
-                     f"unknown variant '{v}' (have {', '.join(prof_variants)})")
-    return ProfileSpec(
-        name=name,
-        seeds=seeds,
-        overrides=_str_list(raw.get("overrides"), f"{where}.overrides"),
-        scenes=scenes,
-        variants=prof_variants,
-        expected_runtime=str(raw.get("expected_runtime", "")),
-        command=str(raw.get("command", "")),
-        baseline=str(raw.get("baseline", "")),
-        jobs=jobs,
-    )
+                    f"unknown variant '{v}' (have {', '.join(prof_variants)})")
+    return ProfileSpec(name=name, seeds=raw.seeds, overrides=tuple(raw.overrides), scenes=scenes,
+                       variants=prof_variants, expected_runtime=raw.expected_runtime, command=raw.command,
+                       baseline=raw.baseline, jobs=raw.jobs)
 
 
 def _smoke_from_quick(quick: ProfileSpec, study: str) -> ProfileSpec:
@@ -151,7 +172,7 @@ def _smoke_from_quick(quick: ProfileSpec, study: str) -> ProfileSpec:
         synth.update(tiny)
         keep = tuple(o for o in s.overrides if not o.startswith("data.path="))
         scenes.append(StudyScene(s.name, synth, keep, s.label, (SYNTH_ROOT / f"{s.name}-smoke").as_posix(),
-                                None, s.variants, s.rungs))
+                                 None, s.variants, s.rungs))
     return ProfileSpec(
         name="smoke",
         seeds=1,  # the quick profile's own overrides (e.g. determinism=portable) carry over
@@ -165,119 +186,81 @@ def _smoke_from_quick(quick: ProfileSpec, study: str) -> ProfileSpec:
 
 
 def parse_study(raw: Any, path: Path, sets: dict[str, Any] | None = None) -> StudySpec:
-    """Validate the structure of a loaded study file (overrides are checked by composing)."""
+    """Validate a loaded study file and build its spec (overrides are checked by composing)."""
     where = str(path)
-    require(isinstance(raw, dict), where, "a study file must be a mapping")
-    for key in ("name", "question", "baseline", "variants", "profiles"):
-        require(key in raw, where, f"missing key '{key}'")
-    require(raw["name"] == path.stem, where, f"name '{raw['name']}' must match the file name")
-    variants = _parse_variants(raw["variants"], f"{where}: variants")
-    profiles_raw = raw["profiles"]
-    require(isinstance(profiles_raw, dict), f"{where}: profiles", "must be a mapping")
-    require("quick" in profiles_raw and "paper" in profiles_raw, f"{where}: profiles", "needs quick and paper")
+    f = study_file.read(study_file.scene_sets(raw, sets or {}, where), where)
+    require(f.name == path.stem, where, f"name '{f.name}' must match the file name")
+    variants = _variants(f.variants, f"{where}: variants")
+    require("quick" in f.profiles and "paper" in f.profiles, f"{where}: profiles", "needs quick and paper")
     profiles: dict[str, ProfileSpec] = {}
-    for name, praw in profiles_raw.items():
+    for name, praw in f.profiles.items():
         require(name in PROFILES, f"{where}: profiles.{name}", f"unknown profile (use {', '.join(PROFILES)})")
-        profiles[name] = _parse_profile(name, praw, f"{where}: profiles.{name}", variants, sets or {})
+        profiles[name] = _profile(name, praw, f"{where}: profiles.{name}", variants)
     if "smoke" not in profiles:
-        profiles["smoke"] = _smoke_from_quick(profiles["quick"], raw["name"])
+        profiles["smoke"] = _smoke_from_quick(profiles["quick"], f.name)
     for name, p in profiles.items():
         if not p.baseline:
-            profiles[name] = p = dataclasses.replace(p, baseline=raw["baseline"])
+            profiles[name] = p = dataclasses.replace(p, baseline=f.baseline)
         require(p.baseline in p.variants, f"{where}: baseline", f"'{p.baseline}' is not a variant of {p.name}")
-    table_raw = raw.get("table") or {}
-    table = TableSpec(
-        layout=str(table_raw.get("layout", "variants_x_scenes")),
-        metrics=_str_list(table_raw.get("metrics", ["psnr"]), f"{where}: table.metrics"),
-    )
-    require(table.layout in TABLE_LAYOUTS, f"{where}: table.layout", f"must be one of {', '.join(TABLE_LAYOUTS)}")
-    plots = _str_list(raw.get("plots"), f"{where}: plots")
-    for p in plots:
+    require(f.table.layout in TABLE_LAYOUTS, f"{where}: table.layout", f"must be one of {', '.join(TABLE_LAYOUTS)}")
+    for p in f.plots:
         require(p in PLOTS, f"{where}: plots", f"unknown plot '{p}' (use {', '.join(PLOTS)})")
-    base_seed = raw.get("base_seed", 0)
-    require(isinstance(base_seed, int), f"{where}: base_seed", "must be an integer")
     all_variants = {v for p in profiles.values() for v in p.variants}
-    claims = _parse_claims(raw.get("claims"), f"{where}: claims", all_variants)
-    variance = _parse_variance(raw.get("variance_components"), f"{where}: variance_components", all_variants)
     return StudySpec(
-        name=raw["name"],
-        question=" ".join(str(raw["question"]).split()),
-        baseline=raw["baseline"],
-        base_seed=base_seed,
-        metrics=_str_list(raw.get("metrics", ["psnr"]), f"{where}: metrics"),
-        table=table,
-        plots=plots,
-        diagnostics=_str_list(raw.get("diagnostics"), f"{where}: diagnostics"),
+        name=f.name,
+        question=" ".join(f.question.split()),
+        baseline=f.baseline,
+        base_seed=f.base_seed,
+        metrics=tuple(f.metrics),
+        table=TableSpec(layout=f.table.layout, metrics=tuple(f.table.metrics)),
+        plots=tuple(f.plots),
+        diagnostics=tuple(f.diagnostics),
         profiles=profiles,
-        notes=" ".join(str(raw.get("notes", "")).split()),
+        notes=" ".join(f.notes.split()),
         path=path,
-        claims=claims,
-        variance=variance,
+        claims=_claims(f.claims, f"{where}: claims", all_variants),
+        variance=_variance(f.variance_components, f"{where}: variance_components", all_variants),
     )
 
 
-def _parse_variance(raw: Any, where: str, variants: set[str]) -> VarianceSpec | None:
-    """Validate ``variance_components:`` (variants: those of any profile)."""
+def _variance(raw: VarianceFile | None, where: str, variants: set[str]) -> VarianceSpec | None:
+    """Check ``variance_components:`` (variants: those of any profile)."""
     if raw is None:
         return None
-    require(isinstance(raw, dict), where, "must be a mapping")
-    for key in ("metric", "optimisation", "initialisation", "hardware"):
-        require(key in raw, where, f"missing key '{key}'")
-    hardware = _str_list(raw["hardware"], f"{where}.hardware")
-    require(len(hardware) >= 2, f"{where}.hardware", "needs at least two dispatch variants")
-    for key, v in [("optimisation", raw["optimisation"]), ("initialisation", raw["initialisation"])] + \
-            [("hardware", h) for h in hardware]:
+    require(len(raw.hardware) >= 2, f"{where}.hardware", "needs at least two dispatch variants")
+    for key, v in [("optimisation", raw.optimisation), ("initialisation", raw.initialisation)] + \
+            [("hardware", h) for h in raw.hardware]:
         require(v in variants, f"{where}.{key}", f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
-    return VarianceSpec(str(raw["metric"]), str(raw["optimisation"]), str(raw["initialisation"]), hardware)
+    return VarianceSpec(raw.metric, raw.optimisation, raw.initialisation, tuple(raw.hardware))
 
 
-_CLAIM_KEYS = {"id", "claim", "paper_number", "metric", "test", "expect", "a", "b", "scenes", "pair", "versus",
-               "threshold"}
-
-
-def _parse_claims(raw: Any, where: str, variants: set[str]) -> tuple[ClaimSpec, ...]:
-    """Validate a study's ``claims:`` list (variants: those of any profile)."""
-    if raw is None:
-        return ()
-    require(isinstance(raw, list), where, "must be a list of claims")
+def _claims(raw: list[ClaimFile], where: str, variants: set[str]) -> tuple[ClaimSpec, ...]:
+    """Check a study's ``claims:`` (variants: those of any profile)."""
     out: list[ClaimSpec] = []
-    for i, c in enumerate(raw):
-        at = f"{where}[{i}]"
-        require(isinstance(c, dict), at, "a claim must be a mapping")
-        unknown = sorted(set(c) - _CLAIM_KEYS)
-        require(not unknown, at, f"unknown key(s) {', '.join(unknown)} (use {', '.join(sorted(_CLAIM_KEYS))})")
-        for key in ("id", "claim", "metric", "test", "expect"):
-            require(key in c, at, f"missing key '{key}'")
-        cid, test, expect = str(c["id"]), str(c["test"]), str(c["expect"])
-        at = f"{where}.{cid}"
-        require(bool(NAME_PATTERN.match(cid)) and cid not in {o.id for o in out}, at, "claim ids must be unique names")
-        require(test in CLAIM_TESTS, f"{at}.test", f"unknown comparison '{test}' (use {', '.join(CLAIM_TESTS)})")
-        require(expect in CLAIM_TESTS[test], f"{at}.expect",
-                 f"'{expect}' is not an expectation of a {test} test (use {', '.join(CLAIM_TESTS[test])})")
-        for key in ("metric", "versus"):
-            if key in c or key == "metric":
-                require(c[key] in CLAIM_METRICS, f"{at}.{key}",
-                         f"unknown metric '{c[key]}' (use {', '.join(CLAIM_METRICS)})")
-        a, b = str(c.get("a") or ""), str(c.get("b") or "")
-        for key, v in (("a", a), ("b", b)):
+    for c in raw:
+        at = f"{where}.{c.id}"
+        require(bool(NAME_PATTERN.match(c.id)) and c.id not in {o.id for o in out}, at,
+                "claim ids must be unique names")
+        require(c.test in CLAIM_TESTS, f"{at}.test", f"unknown comparison '{c.test}' (use {', '.join(CLAIM_TESTS)})")
+        require(c.expect in CLAIM_TESTS[c.test], f"{at}.expect",
+                f"'{c.expect}' is not an expectation of a {c.test} test (use {', '.join(CLAIM_TESTS[c.test])})")
+        for key, metric in (("metric", c.metric), ("versus", c.versus)):
+            require(metric in claimable() or (key == "versus" and not metric), f"{at}.{key}",
+                    f"unknown metric '{metric}' (use {', '.join(claimable())})")
+        for key, v in (("a", c.a), ("b", c.b)):
             require(not v or v in variants, f"{at}.{key}", f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
-        scenes = _str_list(c.get("scenes"), f"{at}.scenes")
-        pair = str(c.get("pair", "seed"))
-        require(pair in ("seed", "none"), f"{at}.pair", "must be 'seed' or 'none'")
-        if test == "correlation":
-            require("versus" in c, at, "a correlation claim needs 'versus' (the second metric)")
+        require(c.pair in ("seed", "none"), f"{at}.pair", "must be 'seed' or 'none'")
+        if c.test == "correlation":
+            require(bool(c.versus), at, "a correlation claim needs 'versus' (the second metric)")
         else:
-            require(bool(a), f"{at}.a", f"a {test} claim needs variant 'a'")
-            require(bool(b) or test == "mean", f"{at}.b", f"a {test} claim needs variant 'b'")
-        if test == "interaction":
-            require(len(scenes) == 2, f"{at}.scenes", "an interaction needs exactly two scenes")
-        threshold = c.get("threshold", 0.5)
-        require(isinstance(threshold, (int, float)) and 0 < threshold < 1, f"{at}.threshold", "must be in (0, 1)")
-        number = c.get("paper_number")
+            require(bool(c.a), f"{at}.a", f"a {c.test} claim needs variant 'a'")
+            require(bool(c.b) or c.test == "mean", f"{at}.b", f"a {c.test} claim needs variant 'b'")
+        if c.test == "interaction":
+            require(len(c.scenes) == 2, f"{at}.scenes", "an interaction needs exactly two scenes")
+        require(0 < c.threshold < 1, f"{at}.threshold", "must be in (0, 1)")
         out.append(ClaimSpec(
-            id=cid, statement=" ".join(str(c["claim"]).split()), metric=str(c["metric"]), test=test,
-            expect=expect, a=a, b=b, scenes=scenes, pair=pair, versus=str(c.get("versus", "")),
-            threshold=float(threshold), paper_number=None if number is None else str(number),
-        ))  # fmt: skip
+            id=c.id, statement=" ".join(c.claim.split()), metric=c.metric, test=c.test, expect=c.expect, a=c.a,
+            b=c.b, scenes=tuple(c.scenes), pair=c.pair, versus=c.versus, threshold=float(c.threshold),
+            paper_number=c.paper_number,
+        ))
     return tuple(out)
-

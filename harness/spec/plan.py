@@ -9,8 +9,9 @@ Hydra composition costs about half a second, and a study has hundreds of runs th
 differ only in a few values. So, exactly as Hydra itself does, the defaults list is
 composed once per distinct set of config-group overrides (``profile=quick``,
 ``data=dynerf``) and the value overrides (``model.gate=true``, ``seed=3``) are then
-applied in order with Hydra's own override parser and applier. The launcher composes
-each job again in full; ``tests/harness`` checks that both give the same config.
+applied in order: parsed with Hydra's override grammar, set with ``OmegaConf.update``. The
+launcher composes each job again in full; ``tests/harness`` checks that both give the same
+config.
 """
 
 from __future__ import annotations
@@ -82,7 +83,13 @@ def _is_group(key: str) -> bool:
 
 
 class Composer:
-    """Composes override lists onto ``train.yaml`` inside one Hydra context, with caching."""
+    """Composes override lists onto ``train.yaml`` inside one Hydra context, with caching.
+
+    Config-group overrides go through ``hydra.compose`` once per distinct set; plain value
+    overrides (``key=value``) are parsed by Hydra's override grammar and applied with
+    ``OmegaConf.update``, as Hydra does. Anything else (``+key``, ``++key``, ``~key``)
+    composes the whole list with ``hydra.compose``.
+    """
 
     def __init__(self) -> None:
         from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -93,6 +100,7 @@ class Composer:
     def compose(self, overrides: list[str]) -> DictConfig:
         """Like ``hydra.compose(config_name='train', overrides=...)``; raises Hydra errors."""
         from hydra import compose
+        from omegaconf import OmegaConf
 
         parsed = []
         for text in overrides:
@@ -102,14 +110,16 @@ class Composer:
                 raise ValueError(f"malformed override '{text}' ({error_line(exc)})") from None
         groups = tuple(o.input_line for o in parsed if _is_group(o.key_or_group))
         values = [o for o in parsed if not _is_group(o.key_or_group)]
+        if any(o.is_delete() or o.is_add() or o.is_force_add() or o.package is not None for o in values):
+            return compose(config_name="train", overrides=list(overrides))
         if groups not in self._base:
             self._base[groups] = compose(config_name="train", overrides=list(groups))
         cfg = self._base[groups].copy()
-        try:
-            from hydra._internal.config_loader_impl import ConfigLoaderImpl
-        except ImportError:  # pragma: no cover - a Hydra without it: compose in full
-            return compose(config_name="train", overrides=list(overrides))
-        ConfigLoaderImpl._apply_overrides_to_config(values, cfg)
+        for o in values:
+            try:
+                OmegaConf.update(cfg, o.key_or_group, o.value(), merge=True)
+            except Exception as exc:  # unknown key or wrong type: say which override
+                raise ValueError(f"could not override '{o.key_or_group}' ({error_line(exc)})") from None
         return cfg
 
 

@@ -30,16 +30,6 @@ NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 # claims: test kinds, the expectations each allows, and the metrics a claim may name
 CLAIM_TESTS = {"mean": ("higher", "lower"), "variance": ("higher", "lower"),
                "interaction": ("higher", "lower"), "correlation": ("weak",)}
-CLAIM_METRICS = (
-    "psnr", "ssim1", "ssim2", "dssim1", "dssim2", "lpips_alex", "lpips_vgg", "lpips_alex_01", "lpips_vgg_01",
-    "train_seconds", "iters_per_second", "peak_rss_mb", "n_gaussians",
-    # diagnostics (ftgspp.diagnostics via the trainer) and the report's per-run convention gaps
-    "lifetime_long_on_static", "lifetime_short_on_dynamic", "lifetime_median_fraction",
-    "lifetime_partition_contrast", "lifetime_short_share_dynamic", "lifetime_short_share_static",
-    "motion_epe_dynamic", "motion_leak_static", "motion_role_switch", "xt_slice_mae",
-    "flicker_static", "flicker_static_gt",
-    "gap_lpips_alex", "gap_lpips_vgg", "gap_ssim", "gap_dssim",
-)
 
 
 @dataclass(frozen=True)

@@ -101,7 +101,7 @@ def test_speed_accuracy_and_stability_tables() -> None:
 
 
 def test_convention_gaps_are_paired_per_run_differences() -> None:
-    from harness.analysis.aggregate import convention_gaps
+    from harness.spec.metrics import add_differences as convention_gaps
 
     runs = pd.DataFrame({"variant": ["baseline"] * 3, "scene": ["s"] * 3, "seed": [0, 1, 2],
                          "status": ["FINISHED"] * 3, "failure": [""] * 3,

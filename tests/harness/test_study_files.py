@@ -143,3 +143,24 @@ def test_bad_per_scene_keys_are_input_errors(tmp_path: Path, bad: dict, match: s
     raw["profiles"]["quick"]["scenes"][0].update(bad)
     with pytest.raises(InputError, match=match):
         parse_study(raw, tmp_path / "toy.yaml")
+
+
+def test_a_rung_value_sets_its_override_or_generator_argument_in_one_place(tmp_path: Path) -> None:
+    raw = _toy()
+    quick = raw["profiles"]["quick"]
+    base = dict(quick["scenes"][0])
+    quick["ladders"] = {"lr_scale": {"override": "lr.scale", "times": 2.0, "base": 1},
+                        "cameras": {"synth": "n_cameras", "base": 10}}
+    quick["scenes"] = [{**base, "name": "base", "rungs": {"lr_scale": 1, "cameras": 10}},
+                       {**base, "name": "lr3", "rungs": {"lr_scale": 3}},
+                       {**base, "name": "cams4", "rungs": {"cameras": 4}}]
+    scenes = {s.name: s for s in parse_study(raw, tmp_path / "toy.yaml").profile("quick").scenes}
+    assert scenes["base"].overrides == () and "n_cameras" not in scenes["base"].synth  # the base rung sets nothing
+    assert scenes["lr3"].overrides == ("lr.scale=6.0",)
+    assert scenes["cams4"].synth["n_cameras"] == 4
+    quick["scenes"][1]["overrides"] = ["lr.scale=6.0"]  # written twice: refused
+    with pytest.raises(InputError, match="'lr.scale' is set by the rung lr_scale: 3"):
+        parse_study(raw, tmp_path / "toy.yaml")
+    quick["scenes"][1] = {**base, "name": "lr3", "rungs": {"lr_scal": 3}}
+    with pytest.raises(InputError, match="unknown ladder 'lr_scal'"):
+        parse_study(raw, tmp_path / "toy.yaml")
