@@ -82,8 +82,10 @@ def foreign_domain_notes(existing: list[RunRecord], planned: list[PlannedRun]) -
         p = by_key.get(rec.key)
         if rec.status != "FINISHED" or p is None:
             continue
-        settings = (p.params.get("determinism", "default"), int(p.params.get("threads", "0")),
-                    p.params.get("dispatch", "native"))
+        # like with like: the thread count the run recorded (a joblib worker may get fewer
+        # threads than planned) and the run's own kernel dispatch
+        threads = rec.tags.get("determinism.torch_threads") or p.params.get("threads", "0")
+        settings = (p.params.get("determinism", "default"), int(threads), p.params.get("dispatch", "native"))
         if settings not in expected:
             expected[settings] = expected_domain_id(*settings)
         here, got = expected[settings], rec.tags.get("determinism.id", "")

@@ -39,3 +39,23 @@ def test_foreign_domains_are_announced_on_resume_and_flagged_in_status_and_repor
     index = write_report("toy", sel, studies_dir=TOY_STUDIES, reports_root=tmp_path / "reports", echo=lambda s: None)
     text = index.read_text()
     assert "Runs from 2 determinism domains" in text and "mix runs of different domains: baseline/easy" in text
+
+
+def test_a_run_of_a_worker_with_fewer_threads_is_compared_like_with_like(
+        tmp_path: Path, mlflow_template: Path, monkeypatch) -> None:
+    """A joblib worker trains with fewer torch threads than the plan assumed; its domain is that
+    of this machine at that thread count, and resume must not call it foreign."""
+    from ftgspp.determinism import expected_domain_id
+
+    prepare_workdir(tmp_path, mlflow_template, monkeypatch)
+    use_fakes(monkeypatch)
+    sel = Selection(variants=["baseline"])
+    kw = dict(studies_dir=TOY_STUDIES, train_fn=fake_train, generate=fake_generate)
+    run_study("toy", sel, echo=lambda s: None, **kw)
+    store = open_store(f"sqlite:///{Path('mlflow.db').resolve()}")
+    run = load_runs(store, "ftgspp/toy", "toy")[0]
+    store.client.set_tag(run.run_id, "determinism.torch_threads", "7")
+    store.client.set_tag(run.run_id, "determinism.id", expected_domain_id("default", 7, "native"))
+    lines: list[str] = []
+    run_study("toy", sel, echo=lines.append, **kw)
+    assert not [ln for ln in lines if ln.startswith("[resume]")]
