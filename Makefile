@@ -52,8 +52,8 @@ reports: install weights
 	$(PY) -m harness.cli.reports_plan --seconds-per-run $(SECONDS_PER_RUN) --jobs $(or $(JOBS),2) --todo .reports-todo
 	@set -e; for s in $$(cat .reports-todo); do case " $(STUDIES) " in *" $$s "*) \
 	  $(VENV)/bin/study run $$s --profile quick $(if $(JOBS),--jobs $(JOBS));; esac; done
-	$(VENV)/bin/study report --all --profile quick --if-changed
-	$(VENV)/bin/study index
+	$(VENV)/bin/study report --all --profile quick --if-changed --out reports
+	$(VENV)/bin/study index --out reports
 	@echo "open reports/index.md"
 
 test: install weights

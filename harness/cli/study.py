@@ -5,8 +5,8 @@
                    [--jobs N] [--launcher basic|joblib|local|slurm] [--lease SECONDS]
                    [key=value overrides ...]
     study status NAME [same selection options]
-    study report NAME [same selection options] [--out DIR]
-    study index [--out DIR]          reports/index.md: every study's claims with verdicts
+    study report NAME [same selection options] [--out DIR]   (default outputs/reports/NAME)
+    study index [--out DIR]          OUT/index.md: every study's claims with verdicts
 
 Studies live in ``studies/NAME.yaml``. Runs are tracked in MLflow (``sqlite:///mlflow.db``
 in the working directory unless ``MLFLOW_TRACKING_URI`` or ``tracking.uri=`` says
@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 
 from ftgspp.errors import InputError, exit_on_input_error
+from harness.report import USER_REPORTS
 from harness.run.launchers import LAUNCHERS
 from harness.spec.runs import Selection
 from harness.spec.study import PROFILES
@@ -71,14 +72,16 @@ def build_parser() -> argparse.ArgumentParser:
                           " (default $FTGSPP_LEASE_S or 300)")
     status = sub.add_parser("status", help="done / failed / missing runs per variant, scene and seed")
     _selection_args(status)
-    report = sub.add_parser("report", help="tables and plots into reports/NAME/ (NAME --all: every study)")
+    report = sub.add_parser("report", help="tables and plots into OUT/NAME/ (NAME --all: every study)")
     _selection_args(report, name_optional=True)
-    report.add_argument("--out", type=Path, default=Path("reports"), help="reports root (default: reports)")
+    report.add_argument("--out", type=Path, default=USER_REPORTS,
+                        help=f"reports root (default: {USER_REPORTS}; the committed reports/ is written only by"
+                             " `make reports`)")
     report.add_argument("--all", action="store_true", help="every study, in one process (no NAME)")
     report.add_argument("--if-changed", action="store_true",
                         help="skip a report whose runs and code are those it was made from (reports/NAME/.fingerprint)")
-    index = sub.add_parser("index", help="reports/index.md: one row per claim of every study with runs")
-    index.add_argument("--out", type=Path, default=Path("reports"), help="reports root (default: reports)")
+    index = sub.add_parser("index", help="index.md: one row per claim of every study with runs")
+    index.add_argument("--out", type=Path, default=USER_REPORTS, help=f"reports root (default: {USER_REPORTS})")
     return parser
 
 

@@ -16,6 +16,7 @@ from typing import Callable
 import pandas as pd
 
 from harness.analysis import claims as claims_mod
+from harness.report import USER_REPORTS
 from harness.report.claims import VERDICT_MARK, effect_text, needed_text
 from harness.report.fmt import p_text, text
 from harness.report.results import collect
@@ -87,7 +88,7 @@ def collect_study_claims(name: str, studies_dir: Path | None = None) -> StudyCla
     return StudyClaims(name, data.study.question, frame, report, n_done, ", ".join(data.code_versions()))
 
 
-def write_claims_index(reports_root: Path = Path("reports"), studies_dir: Path | None = None,
+def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | None = None,
                        echo: Callable[[str], None] = print) -> Path:
     """Write ``reports_root/index.md`` over every study in ``studies_dir``; return its path."""
     root = Path(reports_root)
@@ -96,7 +97,9 @@ def write_claims_index(reports_root: Path = Path("reports"), studies_dir: Path |
     for name in list_studies(studies_dir):
         entry = collect_study_claims(name, studies_dir)
         (entries.append(entry) if entry is not None else missing.append(name))
-    charts = [(caption, f"{study}/{png}") for study, png, caption in CHARTS if (root / study / png).is_file()]
+    with_runs = {e.study for e in entries}
+    charts = [(caption, f"{study}/{png}") for study, png, caption in CHARTS
+              if study in with_runs and (root / study / png).is_file()]
     path = root / "index.md"
     path.write_text(index_markdown(entries, charts, missing))
     n = sum(len(e.frame) for e in entries)

@@ -31,12 +31,12 @@ from typing import Callable
 
 import pandas as pd
 
+from ftgspp.errors import InputError
 from harness.analysis import aggregate
-from harness.report import sections, speed_accuracy as speed_accuracy_report, tables
+from harness.report import USER_REPORTS, sections, speed_accuracy as speed_accuracy_report, tables
 from harness.report.results import ReportData, collect
 from harness.spec.runs import Selection, command_line
 
-REPORTS_ROOT = Path("reports")
 
 
 def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra: list[sections.Section],
@@ -147,15 +147,18 @@ def fingerprint(df: pd.DataFrame) -> str:
 
 
 def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path | None = None,
-                 reports_root: Path = REPORTS_ROOT, echo: Callable[[str], None] = print,
+                 reports_root: Path = USER_REPORTS, echo: Callable[[str], None] = print,
                  if_changed: bool = False, skip_empty: bool = False) -> Path | None:
-    """Write ``reports/<name>/`` and return its index path. ``if_changed``: leave the report as
-    it is when its runs and the code are those it was made from (``.fingerprint``).
-    ``skip_empty``: write nothing (and return None) for a study without finished runs."""
+    """Write ``<reports_root>/<name>/`` and return its index path. ``if_changed``: leave the report
+    as it is when its runs and the code are those it was made from (``.fingerprint``). A study
+    without finished runs writes nothing: ``InputError``, or None with ``skip_empty``."""
     data = collect(name, sel, studies_dir)
-    if skip_empty and not (data.df.status == "FINISHED").any():
-        echo(f"{name}: no finished runs, no report")
-        return None
+    if not (data.df.status == "FINISHED").any():
+        if skip_empty:
+            echo(f"{name}: no finished runs, no report")
+            return None
+        raise InputError(f"study report {name}", f"no finished runs in {data.experiment} at {data.uri}"
+                         f" (run them first: {command_line(name, data.sel)}); nothing written")
     out = Path(reports_root) / name
     stamp = fingerprint(data.df)
     if if_changed and (out / FINGERPRINT).is_file() and (out / FINGERPRINT).read_text().strip() == stamp:

@@ -114,8 +114,8 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     plan = plan_frame().set_index("study")
     assert plan.loc["mini", ["planned", "finished", "to_run"]].tolist() == [6, 6, 0]  # make reports resumes
     assert plan.loc["later", ["finished", "to_run"]].tolist() == [0, 6]
-    assert main(["index"]) == 0
+    assert main(["index", "--out", "reports"]) == 0
     page = Path("reports/index.md").read_text()
     assert sum(line.startswith("| mini |") for line in page.splitlines()) == 4
     assert "[mini](mini/index.md)" in page and "`later`: `study run later --profile quick`" in page
-    assert main(["index"]) == 0 and Path("reports/index.md").read_text() == page  # same store, same page
+    assert main(["index", "--out", "reports"]) == 0 and Path("reports/index.md").read_text() == page  # same page

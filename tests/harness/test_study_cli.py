@@ -97,10 +97,14 @@ def test_status_and_report_of_a_study_never_run_write_no_store(tmp_path: Path, m
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     assert main(["status", "toy"]) == 0
     assert "total: 0 done, 0 failed, 8 missing" in capsys.readouterr().out
-    assert main(["report", "toy"]) == 0
-    assert "8 missing" in (tmp_path / "reports" / "toy" / "index.md").read_text()
-    assert "MISSING" in (tmp_path / "reports" / "toy" / "runs.csv").read_text()
+    for argv in (["report", "toy"], ["report", "toy", "--out", "reports"]):  # never an empty report over one
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        lines = _err_lines(capsys)
+        assert len(lines) == 1 and "no finished runs" in lines[0] and "nothing written" in lines[0]
     assert not (tmp_path / "mlflow.db").exists()
+    assert not (tmp_path / "outputs").exists() and not (tmp_path / "reports").exists()
 
 
 def test_overrides_may_follow_options(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -58,4 +58,4 @@ def test_every_study_runs_and_reports_at_smoke_scale(study: str, workdir: Path,
     out = capsys.readouterr().out
     assert "0 failed" in out, out[-2000:]
     assert main(["report", study]) == 0
-    assert (Path("reports") / study / "table.md").is_file()
+    assert (Path("outputs/reports") / study / "table.md").is_file() and not Path("reports").exists()

@@ -104,7 +104,7 @@ def test_status_and_report(toy, capsys: pytest.CaptureFixture[str]) -> None:
     assert "total: 4 done, 4 failed, 0 missing" in out
     assert "failed seeds 0 (diverged), 1 (diverged)" in out
     assert main(["report", "toy"]) == 0
-    report = toy["work"] / "reports" / "toy"
+    report = toy["work"] / "outputs" / "reports" / "toy"
     for name in ("index.md", "table.md", "table.tex", "strip_psnr.png", "stability.png", "speed_accuracy.png", "runs.csv"):
         assert (report / name).is_file(), name
     assert (report / "diagnostics" / "cc" / "easy" / "lifetime_hist.png").is_file()
@@ -119,7 +119,7 @@ def test_report_if_changed_skips_only_an_unchanged_report(toy, capsys: pytest.Ca
     from harness.cli.study import main
 
     assert main(["report", "toy"]) == 0
-    stamp = toy["work"] / "reports" / "toy" / ".fingerprint"
+    stamp = toy["work"] / "outputs" / "reports" / "toy" / ".fingerprint"
     made = stamp.stat().st_mtime_ns
     capsys.readouterr()
     assert main(["report", "--all", "--if-changed"]) == 0
