@@ -25,14 +25,15 @@ weights: install
 
 # The main job: secret 5 (run-to-run variation, colour correction, initialisation and hardware
 # shares of the spread) on the synthetic studio scene, 5 variants x 5 seeds (2 at a time) in portable
-# determinism mode (the 2 dispatch variants excepted), tracked in ./mlflow.db, then its
-# report. Re-running resumes.
-demo: install
+# determinism mode (the 2 dispatch variants excepted), tracked in ./mlflow.db; its report goes to
+# outputs/reports/secret5 (the committed reports/ is never touched), then `study check` compares
+# every run with the committed reports/secret5/runs.csv, bit for bit. Re-running resumes.
+demo: install weights
 	$(VENV)/bin/study run secret5 --profile quick
 	$(VENV)/bin/study report secret5
-	$(VENV)/bin/study index
-	@echo "report: reports/secret5/index.md (every study's claims: reports/index.md)"
-	@echo "browse the runs: $(VENV)/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db"
+	$(VENV)/bin/study check secret5
+	@echo "report: outputs/reports/secret5/index.md (the committed answers: reports/index.md)"
+	@echo "browse the runs: $(VENV)/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db, then open the link study run printed"
 
 # One training run of the quick profile (the issue-2 demo).
 train-quick: install

@@ -19,6 +19,7 @@ from scipy import stats
 
 AVERAGE = "average"
 KEY_COLUMNS = ["variant", "scene", "seed", "config_hash"]
+RUN_COLUMNS = ("scene_label", "status", "failure", "error", "run_id", "trainer_fingerprint", "command")
 EXTRA_PARAMS = ("budget", "iterations", "lr.scale")
 # run tags that say which determinism domain a run's bits come from (ftgspp/determinism.py)
 DOMAIN_COLUMNS = {"domain": "determinism.id", "determinism": "determinism.mode",
@@ -38,7 +39,7 @@ def match_metrics(patterns: list[str] | tuple[str, ...], available: list[str]) -
 
 def metric_columns(df: pd.DataFrame) -> list[str]:
     """Columns that hold metrics (everything that is not a key, status or param column)."""
-    fixed = {*KEY_COLUMNS, "scene_label", "status", "failure", "error", "run_id", *EXTRA_PARAMS, *DOMAIN_COLUMNS}
+    fixed = {*KEY_COLUMNS, *RUN_COLUMNS, *EXTRA_PARAMS, *DOMAIN_COLUMNS}
     return [c for c in df.columns if c not in fixed]
 
 

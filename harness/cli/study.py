@@ -6,6 +6,7 @@
                    [key=value overrides ...]
     study status NAME [same selection options]
     study report NAME [same selection options] [--out DIR]   (default outputs/reports/NAME)
+    study check NAME [--reference runs.csv] [--strict]   the runs against a committed report, bit for bit
     study index [--out DIR]          OUT/index.md: every study's claims with verdicts
 
 Studies live in ``studies/NAME.yaml``. Runs are tracked in MLflow (``sqlite:///mlflow.db``
@@ -25,7 +26,7 @@ import sys
 from pathlib import Path
 
 from ftgspp.errors import InputError, exit_on_input_error
-from harness.report import USER_REPORTS
+from harness.report import COMMITTED_REPORTS, USER_REPORTS
 from harness.run.launchers import LAUNCHERS
 from harness.spec.runs import Selection
 from harness.spec.study import PROFILES
@@ -80,6 +81,11 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--all", action="store_true", help="every study, in one process (no NAME)")
     report.add_argument("--if-changed", action="store_true",
                         help="skip a report whose runs and code are those it was made from (reports/NAME/.fingerprint)")
+    check = sub.add_parser("check", help="compare the study's runs with a committed report's runs.csv, bit for bit")
+    _selection_args(check)
+    check.add_argument("--reference", type=Path, default=None,
+                       help=f"the runs.csv to compare with (default: {COMMITTED_REPORTS}/NAME/runs.csv)")
+    check.add_argument("--strict", action="store_true", help="exit 1 unless every compared run is bit-identical")
     index = sub.add_parser("index", help="index.md: one row per claim of every study with runs")
     index.add_argument("--out", type=Path, default=USER_REPORTS, help=f"reports root (default: {USER_REPORTS})")
     return parser
@@ -154,6 +160,26 @@ def cmd_status(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check(args: argparse.Namespace) -> int:
+    """``study check NAME``: the latest invocation's runs against a committed report, bit for bit."""
+    from harness.analysis import reproduction
+    from harness.report.results import collect
+
+    reference = args.reference or COMMITTED_REPORTS / args.name / "runs.csv"
+    if not reference.is_file():
+        raise InputError(str(reference), "no such runs.csv (give --reference PATH)")
+    data = collect(args.name, _selection(args, required=False))
+    frame = reproduction.compare(data.df, reproduction.read_reference(str(reference)))
+    out = USER_REPORTS / args.name
+    out.mkdir(parents=True, exist_ok=True)
+    frame.to_csv(out / "reproduction.csv", index=False)
+    for line in reproduction.summary(frame, str(reference)):
+        print(line)
+    print(f"per run: {out / 'reproduction.csv'}")
+    different = (frame.outcome == "different").any() or not (frame.outcome == "identical").any()
+    return 1 if args.strict and different else 0
+
+
 def _print_running(uri: str, experiment: str, study: str) -> int:
     """List the study's RUNNING child runs with their host, age and lease state."""
     import time
@@ -203,6 +229,8 @@ def main(argv: list[str] | None = None) -> int:
                 write_report(name, _selection(args, required=False), reports_root=args.out, if_changed=args.if_changed,
                              skip_empty=args.all)
             return 0
+        if args.command == "check":
+            return cmd_check(args)
         if args.command == "index":
             from harness.report.index import write_claims_index
 

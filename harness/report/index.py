@@ -22,6 +22,7 @@ from harness.report.fmt import p_text, text
 from harness.report.results import collect
 from harness.spec.files import list_studies
 from harness.spec.metrics import add_differences
+from harness.tracking.provenance import trainer_fingerprint
 
 CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per scene (PSNR vs train time and"
                                                     " #Gaussians, Pareto fronts)"),
@@ -39,10 +40,19 @@ class StudyClaims:
     report: str  # link to the study's report, relative to the index page
     n_finished: int
     code: str = ""  # git sha(s) of the runs
+    fingerprints: tuple[str, ...] = ()  # trainer fingerprints of the finished runs
 
 
-def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], missing: list[str]) -> str:
-    """The page: a claims table over every study, the charts, and the studies without runs."""
+def stale_studies(entries: list[StudyClaims], current: str) -> list[tuple[str, str]]:
+    """(study, why) for every study whose runs were not all made by the trainer ``current``."""
+    return [(e.study, ", ".join(e.fingerprints) or "none recorded") for e in entries
+            if set(e.fingerprints) != {current}]
+
+
+def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], missing: list[str],
+                   current: str = "") -> str:
+    """The page: a claims table over every study, the charts, the studies whose runs another
+    trainer made (stale), and the studies without runs."""
     lines = ["# The answers: every claim of the paper on our runs", "",
              "One row per claim of every study with runs in the store. Effect = the compared quantity"
              " (see the study's report for the exact test) with its 95% CI; n = runs or seed pairs;"
@@ -68,6 +78,13 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
         lines += ["Verdicts: " + ", ".join(f"{int(counts.get(v, 0))} {v}" for v in VERDICT_MARK) + ".", ""]
     for caption, path in charts:
         lines += [f"## {caption}", "", f"![{caption}]({path})", ""]
+    stale = stale_studies(entries, current) if current else []
+    if stale:
+        lines += ["## Stale reports", "",
+                  f"The trainer code here (fingerprint `{current}`, `harness/tracking/provenance.py`) is not the"
+                  " code that made these studies' runs, so their numbers need not be what this code gives;"
+                  " `make reports` regenerates them.", "",
+                  *[f"- `{s}`: runs made by trainer {why}" for s, why in stale], ""]
     if missing:
         lines += ["## Studies without runs yet", "", *[f"- `{m}`: `study run {m} --profile quick`" for m in missing],
                   ""]
@@ -85,7 +102,8 @@ def collect_study_claims(name: str, studies_dir: Path | None = None) -> StudyCla
         return None
     frame = claims_mod.evaluate(add_differences(data.df), data.study.claims)
     report = (Path(name) / "index.md").as_posix()
-    return StudyClaims(name, data.study.question, frame, report, n_done, ", ".join(data.code_versions()))
+    return StudyClaims(name, data.study.question, frame, report, n_done, ", ".join(data.code_versions()),
+                       tuple(data.trainer_fingerprints()))
 
 
 def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | None = None,
@@ -101,7 +119,7 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
     charts = [(caption, f"{study}/{png}") for study, png, caption in CHARTS
               if study in with_runs and (root / study / png).is_file()]
     path = root / "index.md"
-    path.write_text(index_markdown(entries, charts, missing))
+    path.write_text(index_markdown(entries, charts, missing, trainer_fingerprint()))
     n = sum(len(e.frame) for e in entries)
     echo(f"index: {n} claims over {len(entries)} studies with runs ({len(missing)} without) written to {path}")
     return path

@@ -20,7 +20,7 @@ import pandas as pd
 from harness.analysis.aggregate import AVERAGE, DOMAIN_COLUMNS, EXTRA_PARAMS, KEY_COLUMNS
 from harness.spec.files import load_study
 from harness.spec.plan import PlannedRun, RunKey, plan_runs
-from harness.spec.runs import Selection, expand
+from harness.spec.runs import Selection, expand, standalone_command
 from harness.spec.study import StudySpec
 from harness.tracking.records import RunRecord, latest_invocation, load_runs, open_store, select, tracking_target
 from harness.tracking.store import Store
@@ -57,6 +57,12 @@ class ReportData:
         variants = [v for v in prof.variants if v in set(self.df.variant)]
         return variants, list(dict.fromkeys(self.df.scene))
 
+    def trainer_fingerprints(self) -> list[str]:
+        """The trainer fingerprints recorded by the finished runs ("unrecorded" for older runs)."""
+        done = self.df[self.df.status == "FINISHED"]
+        col = done["trainer_fingerprint"] if "trainer_fingerprint" in done else pd.Series(dtype=str)
+        return sorted({str(f) if isinstance(f, str) and f else "unrecorded" for f in col})
+
     def code_versions(self) -> list[str]:
         """The git commits recorded by the runs that count."""
         return sorted({rec.tags.get("git_sha", "") for rec in self.chosen.values() if rec is not None} - {""})
@@ -72,9 +78,12 @@ def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]
         for name in EXTRA_PARAMS:
             row[name] = float(p.params[name]) if name in p.params else math.nan
         if rec is None:
-            row.update(status="MISSING", failure="", error="", run_id="")
+            row.update(status="MISSING", failure="", error="", run_id="", trainer_fingerprint="",
+                       command=standalone_command(p.spec))
         else:
-            row.update(status=rec.status, failure=rec.failure, error=rec.error, run_id=rec.run_id)
+            row.update(status=rec.status, failure=rec.failure, error=rec.error, run_id=rec.run_id,
+                       trainer_fingerprint=rec.tags.get("trainer_fingerprint", ""),
+                       command=standalone_command(p.spec, rec.tags.get("determinism.torch_threads", "")))
             row.update({col: rec.tags.get(tag, "") for col, tag in DOMAIN_COLUMNS.items()})
             if rec.status == "FINISHED":
                 row.update(rec.metrics)

@@ -36,7 +36,7 @@ from harness.analysis import aggregate
 from harness.report import USER_REPORTS, sections, speed_accuracy as speed_accuracy_report, tables
 from harness.report.results import ReportData, collect
 from harness.spec.runs import Selection, command_line
-
+from harness.tracking.provenance import trainer_fingerprint
 
 
 def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra: list[sections.Section],
@@ -74,6 +74,12 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
     ]
     if cmds:
         lines += ["Invocations that produced these runs:", "", *[f"- `{cmd}`" for cmd in cmds], ""]
+    if len(df) and "command" in df:
+        first = df.iloc[0]
+        lines += [f"One run by hand, without the harness ({first.variant} / {first.scene} / seed {first.seed}; the"
+                  " `command` column of [runs.csv](runs.csv) has every run's), and `study check "
+                  f"{study.name}` compares a study's runs with this report's, bit for bit:", "",
+                  "```sh", str(first.command).replace(" && ", " &&\n"), "```", ""]
     lines += sections.determinism_lines(df)
     for section in extra:
         lines += [f"## {section.title}", "", section.md, ""]
@@ -120,7 +126,9 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
         "",
         "## Tracking",
         "",
-        f"MLflow store `{_display_uri(data.uri)}`, experiment `{data.experiment}`; code at {', '.join(git) or 'unknown'}.",
+        f"MLflow store `{_display_uri(data.uri)}`, experiment `{data.experiment}`; code at {', '.join(git) or 'unknown'};"
+        f" trainer fingerprint {', '.join(f'`{f}`' for f in data.trainer_fingerprints()) or 'none'}"
+        f" (this checkout: `{trainer_fingerprint()}`).",
         f"Parent runs: {', '.join(p.run_id[:8] for p in data.parents) or 'none'}. Browse them with:",
         "",
         "```sh",

@@ -31,7 +31,7 @@ from harness.spec.plan import PlannedRun, plan_runs
 from harness.spec.runs import Selection, command_line, describe_runs, expand
 from harness.spec.study import StudySpec
 from harness.tracking.conventions import scene_dataset, source_tags, ui_link
-from harness.tracking.provenance import git_sha
+from harness.tracking.provenance import git_sha, trainer_fingerprint
 from harness.tracking.records import RunRecord, load_runs, tracking_target
 from harness.tracking.store import Store, check_store
 
@@ -109,6 +109,7 @@ def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jo
         "command": command,
         **source_tags(command),
         "git_sha": git_sha(),
+        "trainer_fingerprint": trainer_fingerprint(),
         "n_runs": str(len(planned)),
         "n_launched": str(len(todo)),
     }

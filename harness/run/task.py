@@ -25,7 +25,7 @@ from harness.spec.confighash import config_hash, flatten_config
 from harness.spec.plan import resolve
 from harness.tracking.conventions import scene_dataset, source_tags, system_metrics
 from harness.tracking.mlflow_tracker import MlflowTracker
-from harness.tracking.provenance import git_sha, resolve_backend, resolve_device
+from harness.tracking.provenance import git_sha, resolve_backend, resolve_device, trainer_fingerprint
 from harness.tracking.store import Store
 
 TrainFn = Callable[..., RunResult]  # (cfg: TrainConfig, out_dir: Path, tracker) -> RunResult
@@ -143,6 +143,7 @@ class RunTask:
             "mlflow.parentRunId": self.parent_run_id,
             **source_tags(self.command),
             "git_sha": git_sha(),
+            "trainer_fingerprint": trainer_fingerprint(),
             "backend": resolve_backend(cfg.backend, device),
             "device": device,
             "out_dir": str(out_dir),

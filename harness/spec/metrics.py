@@ -34,6 +34,7 @@ class Metric:
     aggregation: str = MEAN  # mean: per-run values; difference: ``of[0] - of[1]`` per run
     of: tuple[str, str] = ("", "")  # the two metrics of a difference
     claimable: bool = True  # a study's claims may test it (exact names only)
+    deterministic: bool = True  # same config, seed and domain -> same bits (timings are not)
 
     @property
     def is_pattern(self) -> bool:
@@ -66,7 +67,7 @@ def lookup(name: str) -> Metric:
         return _REGISTRY[name]
     for m in _REGISTRY.values():
         if m.is_pattern and fnmatch.fnmatch(name, m.name):
-            return Metric(name, m.label, m.decimals, m.better, m.aggregation, m.of, m.claimable)
+            return Metric(name, m.label, m.decimals, m.better, m.aggregation, m.of, m.claimable, m.deterministic)
     return Metric(name)
 
 
@@ -114,9 +115,9 @@ for _m in (
     Metric("lpips_vgg", "LPIPS-VGG ([-1,1] input)", 4, LOWER),
     Metric("lpips_alex_01", "LPIPS-Alex ([0,1] input, 3DGS convention)", 4, LOWER),
     Metric("lpips_vgg_01", "LPIPS-VGG ([0,1] input, 3DGS convention)", 4, LOWER),
-    Metric("train_seconds", "train time (s)", 1, LOWER),
-    Metric("iters_per_second", "iterations/s", 1),
-    Metric("peak_rss_mb", "peak RSS (MB)", 0, LOWER),
+    Metric("train_seconds", "train time (s)", 1, LOWER, deterministic=False),
+    Metric("iters_per_second", "iterations/s", 1, deterministic=False),
+    Metric("peak_rss_mb", "peak RSS (MB)", 0, LOWER, deterministic=False),
     Metric("n_gaussians", "#Gaussians", 0, LOWER),
     # diagnostics (ftgspp.diagnostics via the trainer)
     Metric("lifetime_long_on_static"),
@@ -144,5 +145,6 @@ for _m in (
     Metric("motion_*", better=LOWER, claimable=False),
     Metric("loss*", better=LOWER, claimable=False),
     Metric("epe*", better=LOWER, claimable=False),
+    Metric("system/*", claimable=False, deterministic=False),  # MLflow's system metrics sampler
 ):
     register(_m)

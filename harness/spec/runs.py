@@ -1,10 +1,12 @@
 """Which runs an invocation asks for: ``Selection`` (profile, seeds, scenes, variants,
 overrides), ``expand`` into ``RunSpec``s (one per seed x scene x variant; run ``r`` uses seed
-``base_seed + r``) and the ``study run`` command line that reproduces it.
+``base_seed + r``), the ``study run`` command line that reproduces an invocation, and the
+standalone commands (``ftgspp synth`` + ``ftgspp train``) that reproduce one run by hand.
 """
 
 from __future__ import annotations
 
+import json
 import shlex
 from dataclasses import dataclass, field
 
@@ -116,3 +118,30 @@ def command_line(study: str, sel: Selection, jobs: int = 1, launcher: str = "bas
     if jobs > 1:
         parts += ["--jobs", str(jobs)]
     return " ".join(shlex.quote(p) for p in [*parts, *sel.overrides])
+
+
+# generator arguments with a flag of their own in ``ftgspp synth``; the others go through --set
+SYNTH_FLAGS = {"layout": "--layout", "preset": "--preset", "seed": "--seed", "n_cameras": "--cameras",
+               "n_frames": "--frames", "width": "--width", "height": "--height", "color_shift": "--color-shift",
+               "noise": "--noise", "speed": "--speed", "codec": "--codec"}
+
+
+def standalone_command(run: RunSpec, threads: str = "") -> str:
+    """Shell commands that reproduce ``run`` without the harness: generate its synthetic scene
+    (if it has one) and train it with every override the study added. ``threads``: the torch
+    thread count the run used, pinned when the config leaves it to the process (a run's bits
+    depend on it in the default determinism mode)."""
+    parts = []
+    scene = run.scene
+    if scene.synth is not None:
+        synth = ["ftgspp", "synth", "--out", scene.synth_dir]
+        for key, value in scene.synth.items():
+            flag = SYNTH_FLAGS.get(key)
+            synth += [flag, str(value)] if flag else ["--set", f"{key}={json.dumps(value)}"]
+        parts.append(" ".join(shlex.quote(p) for p in synth))
+    train = ["ftgspp", "train", *run.overrides]
+    if threads and not any(o.startswith("threads=") for o in run.overrides):
+        train.append(f"threads={threads}")
+    train.append(f"hydra.run.dir=outputs/reproduce/{run.study}/{run.label}")
+    parts.append(" ".join(shlex.quote(p) for p in train))
+    return " && ".join(parts)

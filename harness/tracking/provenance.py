@@ -1,11 +1,16 @@
-"""Where a run came from: git commit of the code, the resolved device and render backend.
+"""Where a run came from: git commit of the code, the trainer fingerprint, device and backend.
 
-Read-only: ``git rev-parse`` / ``git status``; "unknown" outside a git checkout.
+``git_sha`` is read-only ``git rev-parse`` / ``git status`` ("unknown" outside a checkout).
+``trainer_fingerprint`` hashes the contents of the files that decide a run's numbers for a
+given config (``ftgspp/**/*.py`` and ``conf/**/*.yaml``): two checkouts with the same
+fingerprint train the same bits in the same determinism domain, whatever else (harness,
+docs, reports) differs. Reports name it, and ``study check`` uses it to say why runs differ.
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
 import subprocess
 from pathlib import Path
 
@@ -30,6 +35,20 @@ def git_sha() -> str:
         return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
+
+
+TRAINER_FILES = (("ftgspp", "*.py"), ("conf", "*.yaml"))
+
+
+@functools.lru_cache(maxsize=1)
+def trainer_fingerprint(root: Path = REPO) -> str:
+    """12 hex digits over the relative paths and contents of the trainer's code and configs."""
+    h = hashlib.sha256()
+    for folder, pattern in TRAINER_FILES:
+        for path in sorted((root / folder).rglob(pattern)):
+            if "__pycache__" not in path.parts:
+                h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()[:12]
 
 
 def resolve_device(device: str) -> str:
