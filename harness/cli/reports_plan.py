@@ -18,13 +18,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from harness.spec.study import jobs_speedup
+
 OVERHEAD = 1.45  # wall time of a run / its train_seconds (evaluation, diagnostics, logging): ~12 s on ~26 s
-JOBS_SPEEDUP = 1.36  # throughput of --jobs 2 over --jobs 1 on 2 cores (BENCHMARKS.md); more jobs: no more
-
-
-def speedup(jobs: int) -> float:
-    """Measured throughput factor of ``jobs`` parallel runs on a 2-core machine."""
-    return JOBS_SPEEDUP if jobs >= 2 else 1.0
 
 
 def plan_frame(profile: str = "quick") -> pd.DataFrame:
@@ -62,10 +58,10 @@ def main(argv: list[str] | None = None) -> int:
     source = "median of finished runs x %.1f" % OVERHEAD if len(measured) else "assumed (no finished runs yet)"
     for r in plan.itertuples():
         print(f"  {r.study:15s} {r.planned:4d} runs, {r.finished:4d} finished, {r.to_run:4d} to run"
-              f"  ~{r.to_run * per_run / speedup(args.jobs) / 60:6.1f} min")
+              f"  ~{r.to_run * per_run / jobs_speedup(args.jobs) / 60:6.1f} min")
     if args.todo is not None:
         args.todo.write_text("".join(f"{r.study}\n" for r in plan.itertuples() if r.to_run > 0))
-    total = plan.to_run.sum() * per_run / speedup(args.jobs)
+    total = plan.to_run.sum() * per_run / jobs_speedup(args.jobs)
     print(f"expected: {int(plan.to_run.sum())} of {int(plan.planned.sum())} runs to do, ~{total / 3600:.1f} h"
           f" ({per_run:.0f} s per run, {source}; --jobs {args.jobs}), then every report and reports/index.md")
     return 0

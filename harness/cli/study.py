@@ -117,7 +117,8 @@ def cmd_list() -> int:
         print(f"{name}: {s.question}")
         for prof in ("quick", "paper"):
             p = s.profiles[prof]
-            print(f"    {prof:5s}: {describe_runs(expand(s, Selection(profile=prof)))}; {p.expected_runtime}")
+            runs = expand(s, Selection(profile=prof))
+            print(f"    {prof:5s}: {describe_runs(runs)}; {p.estimate(len(runs), p.jobs)}")
         print(f"    run: {s.profiles['quick'].command}")
     return 0
 

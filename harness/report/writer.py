@@ -62,7 +62,7 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
         f"Runs: {c['n_runs']} planned = {df.variant.nunique()} variants × {df.scene.nunique()} scenes ×"
         f" {df.seed.nunique()} seeds; {c['n_finished']} finished, {c['n_failed']} failed"
         f" ({c['n_diverged']} diverged), {c['n_missing'] + c['n_running']} missing."
-        f" Baseline: `{prof.baseline}`. Expected runtime: {prof.expected_runtime or 'n/a'}.",
+        f" Baseline: `{prof.baseline}`. Expected runtime: {prof.estimate(c['n_runs'], prof.jobs)}.",
         "",
         "## Reproduce",
         "",

@@ -2,16 +2,22 @@
 
 Every finished run appends one JSON line to ``<sweep_dir>/progress.jsonl`` under a file
 lock and reads back how many runs are done, so each worker can print the study's
-progress and an ETA (wall time so far / runs done x runs left).
+progress and an ETA. Until ``MEASURED_AFTER`` runs are done the ETA is the study's own
+estimate (its profile's ``run_seconds``) less the time spent: the first runs of an install also
+compile the kernels, and an ETA from them alone says hours where minutes are left. Then it is
+the measured rate (wall time so far / runs done x runs left).
 """
 
 from __future__ import annotations
 
 import fcntl
 import json
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+MEASURED_AFTER = 4  # runs done before the ETA trusts the measured rate
 
 
 @dataclass(frozen=True)
@@ -20,15 +26,18 @@ class Progress:
     failed: int
     total: int
     elapsed_s: float
+    expected_total_s: float = 0.0  # the study's estimate for these runs (0: none)
 
     @property
     def eta_s(self) -> float:
+        if self.done < min(MEASURED_AFTER, self.total) and self.expected_total_s > 0:
+            return max(self.expected_total_s - self.elapsed_s, 0.0)
         if self.done == 0:
             return float("nan")
         return self.elapsed_s / self.done * (self.total - self.done)
 
     def line(self) -> str:
-        eta = "?" if self.done == 0 else fmt_seconds(self.eta_s)
+        eta = "?" if math.isnan(self.eta_s) else fmt_seconds(self.eta_s)
         return (
             f"study {self.done}/{self.total} runs done, {self.failed} failed, "
             f"elapsed {fmt_seconds(self.elapsed_s)}, ETA {eta}"
@@ -45,7 +54,8 @@ def fmt_seconds(seconds: float) -> str:
     return f"{s // 3600}h{(s % 3600) // 60:02d}m"
 
 
-def record(path: Path, label: str, status: str, total: int, started_at: float) -> Progress:
+def record(path: Path, label: str, status: str, total: int, started_at: float,
+           expected_total_s: float = 0.0) -> Progress:
     """Append one finished run and return the study's progress."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a+") as fh:
@@ -58,4 +68,4 @@ def record(path: Path, label: str, status: str, total: int, started_at: float) -
         finally:
             fcntl.flock(fh, fcntl.LOCK_UN)
     failed = sum(r["status"] != "FINISHED" for r in rows)
-    return Progress(len(rows), failed, total, time.time() - started_at)
+    return Progress(len(rows), failed, total, time.time() - started_at, expected_total_s)

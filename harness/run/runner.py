@@ -29,7 +29,7 @@ from harness.run.task import JobInfo, RunTask, TrainFn
 from harness.spec.files import load_study
 from harness.spec.plan import PlannedRun, plan_runs
 from harness.spec.runs import Selection, command_line, describe_runs, expand
-from harness.spec.study import StudySpec
+from harness.spec.study import StudySpec, jobs_speedup
 from harness.tracking.conventions import scene_dataset, source_tags, ui_link
 from harness.tracking.provenance import git_sha, trainer_fingerprint
 from harness.tracking.records import RunRecord, load_runs, tracking_target
@@ -210,6 +210,8 @@ def run_study(
         echo(f"  running elsewhere: {rec.tags.get('mlflow.runName', rec.key)} ({lease.describe(rec)})")
     if not todo:
         return outcome
+    profile = study.profile(sel.profile)
+    echo(f"expected: {profile.estimate(len(todo), jobs)}")
 
     for scene in {p.spec.scene.name: p.spec.scene for p in todo}.values():
         with scene_lock(scene):  # another invocation may be generating it right now
@@ -226,6 +228,7 @@ def run_study(
               for p in todo],
         progress_path=str(sweep_dir / "progress.jsonl"),
         started_at=time.time(),
+        expected_total_s=len(todo) * profile.run_seconds / jobs_speedup(jobs),
         train_fn=train_fn,
         lease_s=lease_s,
         command=command,

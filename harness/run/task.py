@@ -90,6 +90,7 @@ class RunTask:
     jobs: list[JobInfo]
     progress_path: str
     started_at: float
+    expected_total_s: float = 0.0  # the profile's estimate for the launched runs (ETA until runs finish)
     train_fn: TrainFn | None = None
     lease_s: float = lease.DEFAULT_LEASE_S
     command: str = ""
@@ -192,7 +193,8 @@ class RunTask:
     def _report(self, job: JobInfo, status: str, extra: dict[str, str], result: RunResult | None,
                 seconds: float) -> None:
         """One progress line for the run and the whole study."""
-        prog = progress.record(Path(self.progress_path), job.label, status, len(self.jobs), self.started_at)
+        prog = progress.record(Path(self.progress_path), job.label, status, len(self.jobs), self.started_at,
+                               self.expected_total_s)
         psnr = result.metrics.get("psnr") if result is not None else None
         what = status if not extra else f"{status} ({extra['failure']}: {extra['error'][:120]})"
         psnr_txt = f" psnr={psnr:.2f}" if isinstance(psnr, (int, float)) else ""

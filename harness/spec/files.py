@@ -159,7 +159,7 @@ def _profile(name: str, raw: ProfileFile, where: str, variants: dict[str, tuple[
                     f"unknown variant '{v}' (have {', '.join(prof_variants)})")
     return ProfileSpec(name=name, seeds=raw.seeds, overrides=tuple(raw.overrides), scenes=scenes,
                        variants=prof_variants, expected_runtime=raw.expected_runtime, command=raw.command,
-                       baseline=raw.baseline, jobs=raw.jobs)
+                       baseline=raw.baseline, jobs=raw.jobs, run_seconds=raw.run_seconds, machine=raw.machine)
 
 
 def _smoke_from_quick(quick: ProfileSpec, study: str) -> ProfileSpec:

@@ -11,7 +11,7 @@ import shlex
 from dataclasses import dataclass, field
 
 from harness.spec.files import require
-from harness.spec.study import StudyScene, StudySpec
+from harness.spec.study import StudyScene, StudySpec, plural
 
 
 @dataclass(frozen=True)
@@ -100,8 +100,9 @@ def describe_runs(runs: list[RunSpec]) -> str:
         return "0 runs"
     n_var, n_scene, n_seed = (len(set(x)) for x in zip(*(r.key for r in runs)))
     full = n_var * n_scene * n_seed == len(runs)
-    return (f"{len(runs)} runs = {n_var} variants x {n_scene} scenes x {n_seed} seeds" if full else
-            f"{len(runs)} runs over {n_var} variants x {n_scene} scenes, up to {n_seed} seeds (per-scene seeds and variants)")
+    sizes = f"{plural(n_var, 'variant')} x {plural(n_scene, 'scene')}"
+    return (f"{plural(len(runs), 'run')} = {sizes} x {plural(n_seed, 'seed')}" if full else
+            f"{plural(len(runs), 'run')} over {sizes}, up to {plural(n_seed, 'seed')} (per-scene seeds and variants)")
 
 
 def command_line(study: str, sel: Selection, jobs: int = 1, launcher: str = "basic") -> str:

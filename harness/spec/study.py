@@ -24,6 +24,29 @@ TINY_SYNTH = {"width": 64, "height": 48, "n_frames": 6, "n_cameras": 5}
 SYNTH_ROOT = Path("data/synth")
 # the smoke scenes are generated at 64x48 already: train them at full resolution
 SMOKE_OVERRIDES = ("profile=smoke", "data.downsample=1")
+JOBS_SPEEDUP = 1.36  # throughput of 2 parallel runs over 1 on 2 cores (BENCHMARKS.md); more: no more
+
+
+def jobs_speedup(jobs: int) -> float:
+    """Measured throughput factor of ``jobs`` parallel runs on a 2-core machine."""
+    return JOBS_SPEEDUP if jobs >= 2 else 1.0
+
+
+def plural(n: int, word: str) -> str:
+    """``1 scene``, ``2 scenes``."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
+def fmt_duration(seconds: float) -> str:
+    """``75 -> '1 min'``, ``3700 -> '1 h 02 min'``, ``40 -> '40 s'``."""
+    s = int(round(seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{round(s / 60)} min"
+    return f"{s // 3600} h {round((s % 3600) / 60):02d} min"
+
+
 TABLE_LAYOUTS = ("variants_x_scenes", "metrics_x_scenes", "variants_x_metrics")
 PLOTS = ("strip", "speed_accuracy", "stability")
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
@@ -69,6 +92,16 @@ class ProfileSpec:
     command: str = ""
     baseline: str = ""
     jobs: int = 1  # parallel runs when `study run` is given no --jobs
+    run_seconds: float = 0.0  # wall seconds per run, one at a time, on ``machine`` (0: unknown)
+    machine: str = ""
+
+    def estimate(self, n_runs: int, jobs: int) -> str:
+        """``~13 min (25 runs x ~40 s, 2 at a time) on <machine>``, or the profile's note."""
+        if self.run_seconds <= 0:
+            return self.expected_runtime or "unknown"
+        total = n_runs * self.run_seconds / jobs_speedup(jobs)
+        at = f", {jobs} at a time" if jobs > 1 else ""
+        return f"~{fmt_duration(total)} ({plural(n_runs, 'run')} x ~{self.run_seconds:.0f} s{at}) on {self.machine}"
 
 
 @dataclass(frozen=True)

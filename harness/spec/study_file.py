@@ -57,7 +57,9 @@ class ProfileFile:
     overrides: List[str] = field(default_factory=list)
     variants: Optional[Dict[str, List[str]]] = None
     ladders: Dict[str, LadderFile] = field(default_factory=dict)
-    expected_runtime: str = ""
+    run_seconds: float = 0.0  # wall seconds per run (one at a time) on ``machine``; 0 = unknown
+    machine: str = "an idle 2-core CPU machine (EPYC-AVX2, BENCHMARKS.md)"
+    expected_runtime: str = ""  # a note for people (GPU profiles); the estimate comes from run_seconds
     command: str = ""
     baseline: str = ""
 

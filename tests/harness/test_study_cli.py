@@ -31,7 +31,7 @@ def test_list_names_every_study_with_run_counts(capsys: pytest.CaptureFixture[st
     from harness.spec.runs import Selection, expand
 
     n = len(expand(load_study("secret5"), Selection(profile="quick")))
-    assert f"quick: {n} runs = 5 variants x 1 scenes x 5 seeds" in out  # what `study run` would plan
+    assert f"quick: {n} runs = 5 variants x 1 scene x 5 seeds" in out  # what `study run` would plan
 
 
 def test_unknown_study_is_one_line_exit_2_and_creates_no_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
