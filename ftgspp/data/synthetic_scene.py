@@ -329,7 +329,7 @@ class MovingSphere:
 
 
 @dataclass
-class SceneSpec:
+class SceneContent:
     """Everything the ray caster needs: static surfaces and moving objects."""
 
     static: list[Quad | Box]
@@ -402,14 +402,14 @@ class Hits:
         return Hits(self.depth.copy(), dup(self.rgb), dup(self.label), dup(self.flow))
 
 
-def cast_static(spec: SceneSpec, origin: np.ndarray, dirs: np.ndarray, colour: bool = True) -> Hits:
+def cast_static(content: SceneContent, origin: np.ndarray, dirs: np.ndarray, colour: bool = True) -> Hits:
     """Cast the ray grid ``origin [3] + t dirs [R, C, 3]`` against the static surfaces.
 
     ``colour=False`` skips shading (``rgb`` is None).
     """
     shape = dirs.shape[:2]
     d = dirs.reshape(-1, 3)
-    ts = np.stack([s.intersect(origin, d) for s in spec.static])  # [S, N]
+    ts = np.stack([s.intersect(origin, d) for s in content.static])  # [S, N]
     idx = np.argmin(ts, axis=0)
     t = ts[idx, np.arange(len(d))]
     if not np.all(np.isfinite(t)):
@@ -418,7 +418,7 @@ def cast_static(spec: SceneSpec, origin: np.ndarray, dirs: np.ndarray, colour: b
     if colour:
         points = origin + t[:, None] * d
         rgb = np.zeros_like(d)
-        for k, surf in enumerate(spec.static):
+        for k, surf in enumerate(content.static):
             m = idx == k
             if m.any():
                 rgb[m] = surf.shade_points(points[m])
@@ -442,7 +442,7 @@ def _screen_box(cam: Camera, centre: np.ndarray, radius: float, scale: int, shap
     return slice(r0, r1), slice(c0, c1)
 
 
-def cast_objects(spec: SceneSpec, cam: Camera, dirs: np.ndarray, scale: int, time: float,
+def cast_objects(content: SceneContent, cam: Camera, dirs: np.ndarray, scale: int, time: float,
                  background: Hits) -> Hits:
     """Composite the moving objects at ``time`` (seconds) over ``background``.
 
@@ -451,7 +451,7 @@ def cast_objects(spec: SceneSpec, cam: Camera, dirs: np.ndarray, scale: int, tim
     """
     out = background.copy()
     origin = cam.center
-    for obj in spec.objects:
+    for obj in content.objects:
         c = obj.path.position(time)
         box = _screen_box(cam, c, obj.radius, scale, dirs.shape[:2])
         if box is None:
