@@ -31,10 +31,10 @@ import cv2
 import numpy as np
 
 from ftgspp.data.scene import Camera
-from ftgspp.data.synthetic_scene import (
-    ArcPath, Box, LinearPath, MovingSphere, Quad, SceneContent, Texture, cast_objects, cast_static,
-    make_rig, make_texture, pixel_rays,
-)
+from ftgspp.data.synthetic_geometry import ArcPath, Box, LinearPath, MovingSphere, Quad, SceneContent
+from ftgspp.data.synthetic_raycast import cast_objects, cast_static
+from ftgspp.data.synthetic_rig import make_rig, pixel_rays
+from ftgspp.data.synthetic_textures import Texture, make_texture
 from ftgspp.errors import InputError
 
 LAYOUTS = ("dynerf", "easyvolcap")
