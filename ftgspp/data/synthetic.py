@@ -37,7 +37,7 @@ from ftgspp.data.synthetic_rig import make_rig, pixel_rays
 from ftgspp.data.synthetic_textures import Texture, make_texture
 from ftgspp.errors import InputError
 
-LAYOUTS = ("dynerf", "easyvolcap")
+SCENE_LAYOUTS = ("dynerf", "easyvolcap")
 # Video codecs for the DyNeRF layout (all in .mp4 containers that OpenCV's bundled FFmpeg
 # reads back). mp4v (MPEG-4 part 2, yuv420p at OpenCV's fixed ~1 bit/pixel) loses ~7 dB on
 # these textures (decoded-vs-source PSNR ~33 dB), so the default is lossless FFV1.
@@ -284,8 +284,8 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
     ``overrides`` are ``SynthConfig`` fields (n_cameras, n_frames, width, height, color_shift,
     noise, speed, ...). Ground truth goes to ``out/gt``.
     """
-    if layout not in LAYOUTS:
-        raise InputError("--layout", f"unknown layout '{layout}' (choose from {', '.join(LAYOUTS)})")
+    if layout not in SCENE_LAYOUTS:
+        raise InputError("--layout", f"unknown layout '{layout}' (choose from {', '.join(SCENE_LAYOUTS)})")
     cfg = resolve_config(preset, seed, **overrides)
     out = Path(out)
     _prepare_out(out, overwrite)
