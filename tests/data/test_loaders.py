@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from ftgspp.config import DataConfig
-from ftgspp.data.dynerf import cameras_from_poses_bounds, poses_bounds_from_cameras
+from ftgspp.data.dynerf import cameras_from_poses_bounds
 from ftgspp.data.load import detect_format, load_scene
 from ftgspp.data.source import match_camera
+from ftgspp.data.synthetic import poses_bounds_row
 from ftgspp.errors import InputError
 
 try:  # tests/ importable as a package
@@ -99,8 +100,9 @@ def test_dynerf_focal_follows_decoded_video_size(tmp_path):
 
 
 def test_poses_bounds_writer_matches_stated_convention():
+    """The writer ``ftgspp synth`` uses, against the fixtures' own rows and the loader."""
     cams = fx.ring_cameras(["cam00", "cam01", "cam02"])
-    rows = poses_bounds_from_cameras(cams, [1, 2, 3], [5, 6, 7])
+    rows = np.stack([poses_bounds_row(cam, near, far) for cam, near, far in zip(cams, [1, 2, 3], [5, 6, 7])])
     np.testing.assert_allclose(rows, fx.llff_rows(cams, [1, 2, 3], [5, 6, 7]), atol=1e-12)
     back = cameras_from_poses_bounds(rows, [c.name for c in cams])
     np.testing.assert_allclose(back[1].R, cams[1].R, atol=1e-12)
