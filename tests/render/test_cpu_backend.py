@@ -301,8 +301,8 @@ def test_balance_tiles_deals_every_tile_once() -> None:
 
 
 def test_matches_dense_yardstick_of_the_bench() -> None:
-    """A third oracle: every Gaussian-pixel pair composited densely (``ftgspp.bench``)."""
-    from ftgspp.bench import dense_rasterize
+    """A third oracle: every Gaussian-pixel pair composited densely (``ftgspp.bench.yardstick``)."""
+    from ftgspp.bench.yardstick import dense_rasterize
 
     scene = make_scene(9)
     (image, alpha, depth), grads = run(cpu.rasterize, scene)
@@ -318,27 +318,6 @@ def test_matches_dense_yardstick_of_the_bench() -> None:
     torch.testing.assert_close(depth, dense[2], rtol=1e-5, atol=1e-5 * dense[2].abs().max().item())
     for name in GRAD_INPUTS:
         assert_grad_close(grads[name], inputs[name].grad, name)
-
-
-def test_bench_render_prints_one_json_line(capsys: pytest.CaptureFixture[str]) -> None:
-    import json
-
-    from ftgspp.bench import main
-
-    argv = ["render", "--n", "200", "--width", "40", "--height", "30", "--repeats", "2", "--warmup", "1",
-            "--no-compile-times", "--json"]  # fmt: skip
-    assert main(argv) == 0
-    lines = capsys.readouterr().out.strip().splitlines()
-    assert len(lines) == 1
-    result = json.loads(lines[0])
-    assert {"reference", "cpu"} <= set(result["backends"])
-    for name, t in result["backends"].items():
-        assert t["fwd_ms"] > 0 and t["fwd_bwd_ms"] > 0 and result["ratios"][name]["fwd_bwd"] > 0
-    assert (result["n"], result["width"], result["height"]) == (200, 40, 30)
-    assert set(result["numba_compile_s"]) == {"cold", "cached", "cold_raster_ms", "cached_raster_ms"}
-    stages = result["stages"]  # the other stages of a cpu render, each against what it replaces
-    assert set(stages["prepare"]) == {"autograd_ms", "fused_ms"} and set(stages["ssim_loss"]) == {"conv2d_ms", "numba_ms"}
-    assert all(t > 0 for stage in stages.values() for t in stage.values())
 
 
 def test_editing_an_input_before_backward_raises() -> None:
@@ -364,7 +343,7 @@ def test_too_many_gaussians_on_one_tile_is_an_error(monkeypatch: pytest.MonkeyPa
 
 _COMPILE_OR_LOAD = """
 import hashlib, json, torch
-from ftgspp.bench import project_scene, random_scene
+from ftgspp.bench.scene import project_scene, random_scene
 from ftgspp.render import cpu
 from ftgspp.render import cpu_kernels as k
 inputs = project_scene(random_scene(300, 64, 48, seed=5))
@@ -402,23 +381,3 @@ def test_the_process_that_compiles_the_kernels_runs_the_same_code_as_one_that_lo
     assert (compiled["cache_hits"], loaded["cache_hits"]) == (0, 2)  # compiled, then loaded
     assert compiled["standalone"] == {"_forward_tile": 0, "_backward_tile": 0}
     assert compiled["sha"] == loaded["sha"]
-
-
-def test_bench_render_reports_the_compile_probe(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The probe's two subprocesses (cold, cached) each print first-call seconds and raster ms."""
-    import subprocess
-
-    from ftgspp import bench
-
-    outputs = iter(["numba noise\n21.5 4.25\n", "0.5 4.0\n"])
-    monkeypatch.setattr(bench.subprocess, "run",
-                        lambda argv, **kw: subprocess.CompletedProcess(argv, 0, stdout=next(outputs), stderr=""))
-    probe = bench.numba_compile_seconds()
-    assert probe == {"cold": 21.5, "cached": 0.5, "cold_raster_ms": 4.25, "cached_raster_ms": 4.0}
-    result = {"n": 10, "n_visible": 10, "width": 32, "height": 24, "repeats": 1, "ratios": {}, "yardstick": None,
-              "backends": {"cpu": {"fwd_ms": 1.0, "fwd_bwd_ms": 2.0}}, "numba_compile_s": probe,
-              "load_average": [0.0, 0.0], "cpu_count": 2}  # fmt: skip
-    table = bench.format_render_table(result)
-    assert "cold 21.5 s, cached 0.50 s" in table and "4.25 ms" in table and "(1.06x)" in table
-    failed = dict(probe, cached=None, cached_raster_ms=None)  # the cached probe failed: no line, no crash
-    assert "numba compile" not in bench.format_render_table(dict(result, numba_compile_s=failed))

@@ -46,7 +46,7 @@ class Pipeline:
 def test_phase_timer_charges_exclusive_time_and_restores_the_seams():
     """Nested timed calls: the parent is charged its own time only; only the loop counts;
     the seams are unwrapped afterwards."""
-    import ftgspp.bench_phases as bp
+    import ftgspp.bench.phases as bp
     import ftgspp.trainer as trainer
 
     seams = (("outer", f"{__name__}:Pipeline.outer"), ("inner", f"{__name__}:Pipeline.inner"))
@@ -62,7 +62,7 @@ def test_phase_timer_charges_exclusive_time_and_restores_the_seams():
 
 
 def test_fit_recovers_planted_exponents():
-    from ftgspp.bench_train import fit_exponents
+    from ftgspp.bench.scale import fit_exponents
 
     points = [{"n": n, "pixels": p, "ms_per_iter": 0.002 * n**0.8 * p**0.5} for n in (1e3, 5e3, 2e4)
               for p in (12288, 49152)]
