@@ -15,7 +15,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import torch
 
@@ -61,7 +61,7 @@ def fit_exponents(points: list[dict[str, Any]]) -> dict[str, float]:
 
 
 def bench_scale(counts: list[int], sizes: list[tuple[int, int]], iterations: int = 30, backend: str = "cpu",
-                echo=print) -> dict[str, Any]:
+                echo: Callable[[str], None] = print) -> dict[str, Any]:
     """Sweep ``counts`` × ``sizes``, each point in a fresh Python process."""
     points = []
     with tempfile.TemporaryDirectory(prefix="ftgspp-scale-scenes-") as scenes:
