@@ -28,8 +28,8 @@ from typing import Iterator, Sequence
 import cv2
 import numpy as np
 
-from ftgspp.data.source import SceneSource, kept_cameras
 from ftgspp.data.scene import Camera
+from ftgspp.data.source import SceneSource, kept_cameras
 from ftgspp.errors import InputError
 
 DEFAULT_FPS = 30.0
@@ -61,16 +61,6 @@ def cameras_from_poses_bounds(
         K = np.array([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]])
         cameras.append(Camera(name=name, K=K, R=R, T=T, width=width, height=height))
     return cameras
-
-
-def poses_bounds_from_cameras(cameras: Sequence[Camera], near: Sequence[float], far: Sequence[float]) -> np.ndarray:
-    """LLFF rows ``[N, 17]`` for OpenCV cameras (square pixels, principal point at W/2, H/2)."""
-    rows = []
-    for cam, n, f in zip(cameras, near, far):
-        c2w = cam.R.T  # columns x (right), y (down), z (forward)
-        m = np.stack([c2w[:, 1], c2w[:, 0], -c2w[:, 2], cam.center, [cam.height, cam.width, cam.K[0, 0]]], axis=1)
-        rows.append(np.concatenate([m.reshape(-1), [n, f]]))
-    return np.asarray(rows, dtype=np.float64)
 
 
 def read_dynerf(root: Path, drop_cameras: Sequence[str] = ()) -> SceneSource:

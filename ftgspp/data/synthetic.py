@@ -31,13 +31,13 @@ import cv2
 import numpy as np
 
 from ftgspp.data.scene import Camera
-from ftgspp.data.synthetic_scene import (
-    ArcPath, Box, LinearPath, MovingSphere, Quad, SceneSpec, Texture, cast_objects, cast_static,
-    make_rig, make_texture, pixel_rays,
-)
+from ftgspp.data.synthetic_geometry import ArcPath, Box, LinearPath, MovingSphere, Quad, SceneContent
+from ftgspp.data.synthetic_raycast import cast_objects, cast_static
+from ftgspp.data.synthetic_rig import make_rig, pixel_rays
+from ftgspp.data.synthetic_textures import Texture, make_texture
 from ftgspp.errors import InputError
 
-LAYOUTS = ("dynerf", "easyvolcap")
+SCENE_LAYOUTS = ("dynerf", "easyvolcap")
 # Video codecs for the DyNeRF layout (all in .mp4 containers that OpenCV's bundled FFmpeg
 # reads back). mp4v (MPEG-4 part 2, yuv420p at OpenCV's fixed ~1 bit/pixel) loses ~7 dB on
 # these textures (decoded-vs-source PSNR ~33 dB), so the default is lossless FFV1.
@@ -114,7 +114,7 @@ def resolve_config(preset: str = "studio", seed: int = 0, **overrides) -> SynthC
 # ----------------------------------------------------------------------------- the scene
 
 
-def build_scene(cfg: SynthConfig) -> tuple[SceneSpec, list[Camera]]:
+def build_scene(cfg: SynthConfig) -> tuple[SceneContent, list[Camera]]:
     """The room, props, moving balls and camera rig of ``cfg`` (textures drawn from the seed)."""
     rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 0]))
     ex, ey, ez = np.eye(3)
@@ -147,7 +147,7 @@ def build_scene(cfg: SynthConfig) -> tuple[SceneSpec, list[Camera]]:
     ]
     cams = make_rig(cfg.n_cameras, cfg.width, cfg.height, cfg.hfov_deg, cfg.arc_deg, cfg.rig_radius,
                     target=np.array([0.0, 0.2, 1.4]), eye_height=-0.3)
-    return SceneSpec(static, objects), cams
+    return SceneContent(static, objects), cams
 
 
 def color_transforms(cfg: SynthConfig, n_cameras: int) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -172,14 +172,14 @@ class CameraRender:
     objects: np.ndarray  # [F, H, W] uint8, 0 = background, k = object k
 
 
-def render_camera(spec: SceneSpec, cam: Camera, cfg: SynthConfig, transform: tuple[np.ndarray, np.ndarray],
+def render_camera(content: SceneContent, cam: Camera, cfg: SynthConfig, transform: tuple[np.ndarray, np.ndarray],
                   cam_index: int) -> CameraRender:
     """Ray-cast all frames of one camera, then apply its colour shift and noise."""
     H, W, s = cam.height, cam.width, cfg.supersample
     sub_dirs, cen_dirs = pixel_rays(cam, s), pixel_rays(cam, 1)
-    sub_bg = cast_static(spec, cam.center, sub_dirs)  # RGB only
+    sub_bg = cast_static(content, cam.center, sub_dirs)  # RGB only
     sub_bg.label = sub_bg.flow = None
-    cen_bg = cast_static(spec, cam.center, cen_dirs, colour=False)  # ground truth only
+    cen_bg = cast_static(content, cam.center, cen_dirs, colour=False)  # ground truth only
     M = np.eye(3) + transform[0]
     noise_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 2, cam_index]))
     F = cfg.n_frames
@@ -187,13 +187,13 @@ def render_camera(spec: SceneSpec, cam: Camera, cfg: SynthConfig, transform: tup
                        np.empty((F, H, W, 3), np.float16), np.empty((F, H, W), np.uint8))
     for f in range(F):
         t = f / cfg.fps
-        rgb = cast_objects(spec, cam, sub_dirs, s, t, sub_bg).rgb
+        rgb = cast_objects(content, cam, sub_dirs, s, t, sub_bg).rgb
         img = cv2.resize(rgb.astype(np.float32), (W, H), interpolation=cv2.INTER_AREA)  # s x s box average
         img = img @ M + transform[1]
         if cfg.noise > 0:
             img = img + noise_rng.normal(0.0, cfg.noise, img.shape)
         out.frames[f] = np.round(np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
-        gt = cast_objects(spec, cam, cen_dirs, 1, t, cen_bg)
+        gt = cast_objects(content, cam, cen_dirs, 1, t, cen_bg)
         out.depth[f] = gt.depth
         out.flow3d[f] = gt.flow
         out.objects[f] = gt.label
@@ -253,10 +253,10 @@ def _write_json(path: Path, obj: dict) -> None:
     path.write_text(json.dumps(obj, indent=1) + "\n")
 
 
-def _trajectories(spec: SceneSpec, cfg: SynthConfig) -> dict:
+def _trajectories(content: SceneContent, cfg: SynthConfig) -> dict:
     times = np.arange(cfg.n_frames) / cfg.fps
     objs = []
-    for o in spec.objects:
+    for o in content.objects:
         objs.append(dict(
             label=o.label, name=o.name, kind=o.path.kind, shape="sphere", radius=o.radius,
             angular_velocity=o.angular_velocity().tolist(),
@@ -284,21 +284,21 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
     ``overrides`` are ``SynthConfig`` fields (n_cameras, n_frames, width, height, color_shift,
     noise, speed, ...). Ground truth goes to ``out/gt``.
     """
-    if layout not in LAYOUTS:
-        raise InputError("--layout", f"unknown layout '{layout}' (choose from {', '.join(LAYOUTS)})")
+    if layout not in SCENE_LAYOUTS:
+        raise InputError("--layout", f"unknown layout '{layout}' (choose from {', '.join(SCENE_LAYOUTS)})")
     cfg = resolve_config(preset, seed, **overrides)
     out = Path(out)
     _prepare_out(out, overwrite)
     say = print if verbose else (lambda *a, **k: None)
     start = time.perf_counter()
-    spec, cams = build_scene(cfg)
+    content, cams = build_scene(cfg)
     transforms = color_transforms(cfg, len(cams))
     gt = out / "gt"
     for sub in ("depth", "flow3d", "objects"):
         (gt / sub).mkdir(parents=True, exist_ok=True)
     bounds = []
     for ci, cam in enumerate(cams):
-        r = render_camera(spec, cam, cfg, transforms[ci], ci)
+        r = render_camera(content, cam, cfg, transforms[ci], ci)
         if layout == "dynerf":
             write_video(out / f"{cam.name}.mp4", r.frames, cfg.fps, cfg.codec)
         else:
@@ -329,7 +329,7 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
                    flow3d="flow3d/<cam>.npy float16 [F,H,W,3] world velocity of the visible point, units/s",
                    objects="objects/<cam>.npy uint8 [F,H,W] 0 = background, k = label of object k"),
     ))
-    _write_json(gt / "trajectories.json", _trajectories(spec, cfg))
+    _write_json(gt / "trajectories.json", _trajectories(content, cfg))
     _write_json(gt / "color_transforms.json", dict(
         convention="observed = clip(I @ (I3 + dM) + b + noise); I is an RGB row vector in [0, 1]",
         noise_sigma=cfg.noise,

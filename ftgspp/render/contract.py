@@ -52,7 +52,5 @@ class RenderOutput:
     depths: torch.Tensor  # [N] camera-space depth of each centre
 
 
-Rasterize = Callable[..., "tuple[torch.Tensor, torch.Tensor, torch.Tensor]"]
-
-
+# The signature every backend's ``rasterize`` has (see the module docstring).
 Rasterize = Callable[..., "tuple[torch.Tensor, torch.Tensor, torch.Tensor]"]

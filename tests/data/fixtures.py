@@ -183,3 +183,8 @@ def write_easyvolcap(
             params = [cv2.IMWRITE_JPEG_QUALITY, 98] if ext in (".jpg", ".jpeg") else []
             assert cv2.imwrite(str(folder / f"{k:06d}{ext}"), bgr, params)
     return root
+
+
+def write_scene(layout: str, root: Path, **kwargs) -> Path:
+    """``write_dynerf`` or ``write_easyvolcap`` (``layout`` "dynerf" | "easyvolcap") with ``kwargs``."""
+    return write_dynerf(root, **kwargs) if layout == "dynerf" else write_easyvolcap(root, **kwargs)

@@ -1,4 +1,5 @@
-"""Scene loaders (DyNeRF, EasyVolcap): conventions, frame ranges, caching, bad input.
+"""Scene loaders (DyNeRF, EasyVolcap): conventions, frame ranges, caching (bad input:
+``test_loader_errors.py``).
 
 Scenes are tiny (32x24, 4 cameras, 6 frames) and written by ``fixtures.py``; each frame
 shows a blob where the fixture's own camera model projects a moving 3D point, so marker
@@ -15,9 +16,10 @@ import numpy as np
 import pytest
 
 from ftgspp.config import DataConfig
-from ftgspp.data.dynerf import cameras_from_poses_bounds, poses_bounds_from_cameras
+from ftgspp.data.dynerf import cameras_from_poses_bounds
 from ftgspp.data.load import detect_format, load_scene
 from ftgspp.data.source import match_camera
+from ftgspp.data.synthetic import poses_bounds_row
 from ftgspp.errors import InputError
 
 try:  # tests/ importable as a package
@@ -26,10 +28,6 @@ except ImportError:  # pytest's default "prepend" import mode puts this folder o
     import fixtures as fx  # type: ignore[no-redef]
 
 MARKER_TOL_PX = 0.3  # blob centroid vs projection; a half-pixel convention slip is 0.5
-
-
-def _write(layout: str, root: Path, **kwargs) -> Path:
-    return fx.write_dynerf(root, **kwargs) if layout == "dynerf" else fx.write_easyvolcap(root, **kwargs)
 
 
 def _load(root: Path, **kwargs) -> object:
@@ -99,8 +97,9 @@ def test_dynerf_focal_follows_decoded_video_size(tmp_path):
 
 
 def test_poses_bounds_writer_matches_stated_convention():
+    """The writer ``ftgspp synth`` uses, against the fixtures' own rows and the loader."""
     cams = fx.ring_cameras(["cam00", "cam01", "cam02"])
-    rows = poses_bounds_from_cameras(cams, [1, 2, 3], [5, 6, 7])
+    rows = np.stack([poses_bounds_row(cam, near, far) for cam, near, far in zip(cams, [1, 2, 3], [5, 6, 7])])
     np.testing.assert_allclose(rows, fx.llff_rows(cams, [1, 2, 3], [5, 6, 7]), atol=1e-12)
     back = cameras_from_poses_bounds(rows, [c.name for c in cams])
     np.testing.assert_allclose(back[1].R, cams[1].R, atol=1e-12)
@@ -109,7 +108,7 @@ def test_poses_bounds_writer_matches_stated_convention():
 @pytest.mark.parametrize("layout", ["dynerf", "easyvolcap"])
 @pytest.mark.parametrize("downsample", [1, 2])
 def test_marker_lands_where_loaded_camera_projects_it(tmp_path, layout, downsample):
-    root = _write(layout, tmp_path / "s", **(dict(ext=".jpg") if layout == "easyvolcap" else {}))
+    root = fx.write_scene(layout, tmp_path / "s", **(dict(ext=".jpg") if layout == "easyvolcap" else {}))
     _assert_markers(_load(root, downsample=downsample, frame_start=1, frame_end=5))
 
 
@@ -148,7 +147,7 @@ def test_easyvolcap_distorted_frames_are_undistorted_with_same_K(tmp_path):
 
 @pytest.mark.parametrize("layout", ["dynerf", "easyvolcap"])
 def test_frame_range_and_times_in_seconds(tmp_path, layout):
-    root = _write(layout, tmp_path / "s", n_frames=6, fps=25.0)
+    root = fx.write_scene(layout, tmp_path / "s", n_frames=6, fps=25.0)
     scene = _load(root, frame_start=2, frame_end=5)
     assert scene.fps == pytest.approx(25.0)  # dynerf: from the video; easyvolcap: scene.json
     np.testing.assert_array_equal(scene.frame_ids, [2, 3, 4])
@@ -167,7 +166,7 @@ def test_easyvolcap_fps_defaults_to_30_or_comes_from_metadata(tmp_path):
 
 @pytest.mark.parametrize("layout", ["dynerf", "easyvolcap"])
 def test_downsample_scales_cameras_and_frames_together(tmp_path, layout):
-    root = _write(layout, tmp_path / "s", n_frames=2)
+    root = fx.write_scene(layout, tmp_path / "s", n_frames=2)
     full, half = _load(root), _load(root, downsample=2)
     for a, b, c in zip(full.cameras, half.cameras, range(len(full.cameras))):
         assert (b.width, b.height) == (a.width // 2, a.height // 2)
@@ -220,7 +219,7 @@ def test_scene_name_and_ground_truth_folder(tmp_path):
 
 @pytest.mark.parametrize("layout", ["dynerf", "easyvolcap"])
 def test_frames_cached_once_and_reused(tmp_path, layout):
-    root = _write(layout, tmp_path / "s", n_frames=3)
+    root = fx.write_scene(layout, tmp_path / "s", n_frames=3)
     scene = _load(root)
     assert scene.cache_dir.is_relative_to(root / ".ftgspp_cache")
     first = np.array(scene.frames(1))
@@ -243,7 +242,7 @@ def test_concurrent_cache_writers_each_install_a_whole_file(tmp_path, monkeypatc
     """Two runs fill the same frame cache at once: the second writes its file while the
     first is about to rename its own. Both read whole arrays (with one shared temporary
     name, the second truncated the first's file and a run died reading it)."""
-    root = _write("dynerf", tmp_path / "s", n_frames=3)
+    root = fx.write_scene("dynerf", tmp_path / "s", n_frames=3)
     first, second = _load(root), _load(root)
     expected = np.array(_load(root).decode(1))
     real_replace = os.replace
@@ -271,151 +270,3 @@ def test_cache_dir_option_and_stale_cache(tmp_path):
     sa.frames(0)
     os.utime(a / "cam00.mp4", ns=(1, 1))  # the video changed: its cache must not be reused
     assert _load(a, cache_dir=str(tmp_path / "cache")).cache_dir != sa.cache_dir
-
-
-# --- bad input: one InputError naming the file --------------------------------------------
-
-
-def _poses(root: Path) -> np.ndarray:
-    return np.load(root / "poses_bounds.npy")
-
-
-def _corrupt_bytes(path: Path) -> None:
-    path.write_bytes(b"this is not what it claims to be" * 8)
-
-
-DYNERF_BAD = {
-    "poses wrong shape": (lambda r: np.save(r / "poses_bounds.npy", _poses(r)[:, :15]), {}, "poses_bounds.npy"),
-    "poses NaN": (
-        lambda r: np.save(r / "poses_bounds.npy", np.where(np.eye(4, 17, 3) > 0, np.nan, _poses(r))),
-        {},
-        "poses_bounds.npy",
-    ),
-    "poses Inf": (
-        lambda r: np.save(r / "poses_bounds.npy", np.where(np.eye(4, 17, 16) > 0, np.inf, _poses(r))),
-        {},
-        "poses_bounds.npy",
-    ),
-    "poses not npy": (lambda r: _corrupt_bytes(r / "poses_bounds.npy"), {}, "poses_bounds.npy"),
-    "poses not a rotation": (
-        lambda r: np.save(r / "poses_bounds.npy", _poses(r) * np.r_[[2.0] * 3, [1.0] * 14]),
-        {},
-        "poses_bounds.npy",
-    ),
-    "more rows than videos": (
-        lambda r: np.save(r / "poses_bounds.npy", np.vstack([_poses(r), _poses(r)[:1]])),
-        {},
-        "poses_bounds.npy.*5 camera rows.*4 videos",
-    ),
-    "fewer rows than videos": (
-        lambda r: np.save(r / "poses_bounds.npy", _poses(r)[:3]),
-        {},
-        "poses_bounds.npy.*3 camera rows.*4 videos",
-    ),
-    "corrupt video": (lambda r: _corrupt_bytes(r / "cam02.mp4"), {}, "cam02.mp4"),
-    "short video": (
-        lambda r: fx.write_video(r / "cam01.mp4", [fx.render_frame(fx.ring_cameras(["x"])[0], 0.0)] * 3, 30.0),
-        dict(frame_end=5),
-        "cam01.mp4.*3 frames.*needs 5",
-    ),
-    "range past every video": (lambda r: None, dict(frame_start=6), "cam00.mp4.*6 frames"),
-    "video of another aspect": (
-        lambda r: fx.write_video(r / "cam03.mp4", [np.zeros((24, 40, 3), np.uint8)] * 6, 30.0),
-        {},
-        "cam03.mp4.*40x24",
-    ),
-    "empty frame range": (lambda r: None, dict(frame_start=3, frame_end=3), "data.frame_end.*empty"),
-    "negative frame start": (lambda r: None, dict(frame_start=-1), "data.frame_start"),
-    "unknown drop camera": (lambda r: None, dict(drop_cameras=["cam13"]), "data.drop_cameras.*cam13"),
-    "every camera dropped": (
-        lambda r: None, dict(drop_cameras=["cam00", "cam01", "cam02", "cam03"]), "data.drop_cameras.*every"
-    ),
-    "unknown test camera": (lambda r: None, dict(test_cameras=["cam13"]), "data.test_cameras.*cam13"),
-    "downsample below 1": (lambda r: None, dict(downsample=0.5), "data.downsample"),
-    "unknown format": (lambda r: None, dict(format="llff"), "data.format.*llff"),
-    "missing folder": (lambda r: None, dict(path="/nonexistent/scene"), "/nonexistent/scene.*not found"),
-}
-
-
-@pytest.mark.parametrize("case", list(DYNERF_BAD))
-def test_dynerf_bad_input_raises_input_error(tmp_path, case):
-    mutate, options, pattern = DYNERF_BAD[case]
-    root = fx.write_dynerf(tmp_path / "s", n_frames=6)
-    mutate(root)
-    with pytest.raises(InputError, match=pattern) as err:
-        load_scene(DataConfig(**{"path": str(root), **options}))
-    assert "\n" not in str(err.value)
-
-
-def _drop_line(path: Path, prefix: str) -> None:
-    """Remove the yml entry starting with ``prefix`` (and its indented continuation lines)."""
-    out, skipping = [], False
-    for line in path.read_text().splitlines(keepends=True):
-        if line.startswith(prefix):
-            skipping = True
-            continue
-        if skipping and line.startswith("   "):
-            continue
-        skipping = False
-        out.append(line)
-    path.write_text("".join(out))
-
-
-EASYVOLCAP_BAD = {
-    "intri missing K": (lambda r: _drop_line(r / "intri.yml", "K_01:"), {}, "intri.yml.*K_01"),
-    "intri missing names": (lambda r: _drop_line(r / "intri.yml", "names:"), {}, "intri.yml.*names"),
-    "extri missing T": (lambda r: _drop_line(r / "extri.yml", "T_02:"), {}, "extri.yml.*T_02"),
-    "extri missing R": (lambda r: _drop_line(r / "extri.yml", "R_00:"), {}, "extri.yml.*R_00"),
-    "extri not yaml": (lambda r: _corrupt_bytes(r / "extri.yml"), {}, "extri.yml"),
-    "intri missing file": (lambda r: (r / "intri.yml").unlink(), dict(format="easyvolcap"), "intri.yml.*not found"),
-    "K with NaN": (
-        lambda r: (r / "intri.yml").write_text((r / "intri.yml").read_text().replace("data: [ 30", "data: [ .NaN", 1)),
-        {},
-        "intri.yml.*K_00.*NaN",
-    ),
-    "missing image": (lambda r: (r / "images" / "01" / "000003.png").unlink(), dict(frame_end=6), "01/000003.png"),
-    "missing image folder": (lambda r: os.rename(r / "images" / "02", r / "images" / "x"), {}, "images/02"),
-    "range past images": (lambda r: None, dict(frame_end=9), "000006.png.*6 frames.*needs 9"),
-    "unknown test camera": (lambda r: None, dict(test_cameras=["cam07"]), "data.test_cameras.*cam07"),
-    "bad scene.json": (lambda r: (r / "scene.json").write_text("{fps: "), {}, "scene.json"),
-}
-
-
-@pytest.mark.parametrize("case", list(EASYVOLCAP_BAD))
-def test_easyvolcap_bad_input_raises_input_error(tmp_path, case):
-    mutate, options, pattern = EASYVOLCAP_BAD[case]
-    root = fx.write_easyvolcap(tmp_path / "s", n_frames=6)
-    mutate(root)
-    with pytest.raises(InputError, match=pattern) as err:
-        load_scene(DataConfig(**{"path": str(root), **options}))
-    assert "\n" not in str(err.value)
-
-
-LAZY_BAD = {
-    "dynerf video removed": ("dynerf", lambda r: (r / "cam01.mp4").unlink(), "cam01.mp4"),
-    "dynerf video truncated": (
-        "dynerf",
-        lambda r: fx.write_video(r / "cam01.mp4", [fx.render_frame(fx.ring_cameras(["x"])[0], 0.0)] * 2, 30.0),
-        "cam01.mp4.*decoding stopped",
-    ),
-    "easyvolcap corrupt image": (
-        "easyvolcap",
-        lambda r: _corrupt_bytes(r / "images" / "01" / "000002.png"),
-        "000002.png",
-    ),
-    "easyvolcap resized image": (
-        "easyvolcap",
-        lambda r: cv2.imwrite(str(r / "images" / "01" / "000001.png"), np.zeros((12, 16, 3), np.uint8)),
-        "000001.png.*16x12",
-    ),
-}
-
-
-@pytest.mark.parametrize("case", list(LAZY_BAD))
-def test_decode_failure_after_loading_raises_input_error(tmp_path, case):
-    layout, mutate, pattern = LAZY_BAD[case]
-    scene = _load(_write(layout, tmp_path / "s", n_frames=4))
-    mutate(scene.root)  # the files change between loading and decoding
-    with pytest.raises(InputError, match=pattern):
-        scene.frames(1)
-    assert not list(scene.cache_dir.glob("*.npy"))  # nothing half-written to the cache

@@ -1,10 +1,12 @@
 """The ``cpu`` rasterization backend against independent oracles.
 
 Oracles: the reference rasterizer (pure PyTorch autograd, tile-masked like the contract) for
-images and every gradient, and a float64 per-pixel Python loop written from the contract in
-docs/CONTRACTS.md for the forward pass. Scenes mix overlapping, tiny, huge, needle-like,
+images and every gradient, a float64 per-pixel Python loop written from the contract in
+docs/CONTRACTS.md for the forward pass, and the bench's dense yardstick (every
+Gaussian-pixel pair). Scenes (``cpu_scenes.py``) mix overlapping, tiny, huge, needle-like,
 indefinite, behind-camera (radius 0), off-screen, saturated and radius-truncated Gaussians
-on an image whose size is not a multiple of the tile size.
+on an image whose size is not a multiple of the tile size. The kernels' own pieces are
+tested in ``test_cpu_kernels.py``.
 """
 
 from __future__ import annotations
@@ -15,104 +17,11 @@ import numpy as np
 import pytest
 import torch
 
-from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
 from ftgspp.render import cpu
+from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
 from ftgspp.render.reference import rasterize as reference_rasterize
 from tests.numba_threads import under_thread_counts
-
-WIDTH, HEIGHT = 53, 41  # 4 x 3 tiles, the last row and column partial
-
-
-def _conics_and_radii(sigma: torch.Tensor, angle: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Conic (a, b, c) of a rotated 2D Gaussian (+0.3 low-pass) and its 3-sigma radius."""
-    c, s = torch.cos(angle), torch.sin(angle)
-    rot = torch.stack([c, -s, s, c], -1).reshape(-1, 2, 2).double()
-    cov = rot @ torch.diag_embed(sigma.double() ** 2) @ rot.transpose(1, 2) + 0.3 * torch.eye(2, dtype=torch.float64)
-    inv = torch.linalg.inv(cov)
-    conics = torch.stack([inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]], -1).float()
-    radii = torch.ceil(3 * torch.linalg.eigvalsh(cov)[:, 1].sqrt()).int()
-    return conics, radii
-
-
-def make_scene(seed: int, n_dim: int = 3, width: int = WIDTH, height: int = HEIGHT) -> dict:
-    """A random scene with every awkward kind of Gaussian the rasterizer must handle."""
-    g = torch.Generator().manual_seed(seed)
-
-    def rand(*shape):
-        return torch.rand(*shape, generator=g)
-
-    parts = []
-
-    def add(n, means, sigma, opac, depth=None):
-        conics, radii = _conics_and_radii(sigma, rand(n) * math.pi)
-        parts.append(dict(
-            means2d=means, conics=conics, opacities=opac,
-            depths=depth if depth is not None else 1 + 9 * rand(n), radii=radii,
-        ))  # fmt: skip
-
-    size = torch.tensor([width, height], dtype=torch.float32)
-    n = 120  # ordinary: spread over and a bit beyond the image
-    add(n, rand(n, 2) * size * 1.2 - 0.1 * size, 0.5 + 3 * rand(n, 2), rand(n))
-    n = 40  # overlapping cluster
-    add(n, 20 + 3 * rand(n, 2), 2 + 2 * rand(n, 2), 0.3 + 0.7 * rand(n))
-    n = 30  # opaque stack: transmittance falls below T_MIN and pixels stop early
-    add(n, torch.tensor([35.0, 12.0]) + rand(n, 2), 3 + rand(n, 2), torch.full((n,), 0.995))
-    n = 20  # saturated opacities (0.99 clamp active near the centres)
-    add(n, rand(n, 2) * size, 1 + 2 * rand(n, 2), 1 - 0.005 * rand(n))
-    n = 30  # tiny
-    add(n, rand(n, 2) * size, 0.05 + 0.3 * rand(n, 2), rand(n))
-    n = 4  # huge, covering many tiles
-    add(n, rand(n, 2) * size, 25 + 30 * rand(n, 2), 0.2 * rand(n))
-    n = 4  # needles (ill-conditioned conics)
-    add(n, rand(n, 2) * size, torch.stack([150 + 100 * rand(n), 0.1 * rand(n)], -1), 0.5 + 0.5 * rand(n))
-    n = 10  # off-screen: some reach into the image with their radius, some do not
-    off = torch.stack([-8 - 10 * rand(n), height + 2 + 10 * rand(n)], -1)
-    add(n, off, 3 + 3 * rand(n, 2), 0.5 + 0.5 * rand(n))
-    n = 10  # equal depths: ties broken by index
-    add(n, 10 + 20 * rand(n, 2), 2 + 2 * rand(n, 2), 0.5 + 0.5 * rand(n), torch.full((n,), 4.0))
-    n = 10  # behind the camera: radius 0, negative depth, arbitrary 2D values
-    add(n, rand(n, 2) * size, 1 + 3 * rand(n, 2), rand(n), -1 - rand(n))
-    parts[-1]["radii"][:] = 0
-    n = 8  # radius smaller than the footprint: cut at tile boundaries
-    add(n, rand(n, 2) * size, 5 + 5 * rand(n, 2), 0.5 + 0.5 * rand(n))
-    parts[-1]["radii"] = (parts[-1]["radii"] // 4).clamp_min(1)
-    n = 3  # indefinite conics (b^2 > ac): power can be positive, skipped per pixel
-    add(n, rand(n, 2) * size, 2 + rand(n, 2), 0.5 + 0.5 * rand(n))
-    parts[-1]["conics"][:, 1] = 2 * torch.sqrt(parts[-1]["conics"][:, 0] * parts[-1]["conics"][:, 2])
-
-    scene = {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
-    total = scene["means2d"].shape[0]
-    perm = torch.randperm(total, generator=g)
-    scene = {k: v[perm].contiguous() for k, v in scene.items()}
-    scene["colors"] = rand(total, n_dim)
-    scene["background"] = rand(n_dim)
-    scene["width"], scene["height"] = width, height
-    return scene
-
-
-GRAD_INPUTS = ("means2d", "conics", "colors", "opacities", "depths", "background")
-
-
-def run(rasterize, scene: dict, seed: int = 0) -> tuple[tuple[torch.Tensor, ...], dict[str, torch.Tensor]]:
-    """Forward, then backward of <outputs, fixed random cotangents>. Returns (outputs, grads)."""
-    inputs = {k: scene[k].clone().requires_grad_(True) for k in GRAD_INPUTS}
-    outputs = rasterize(
-        inputs["means2d"], inputs["conics"], inputs["colors"], inputs["opacities"], inputs["depths"],
-        scene["radii"], scene["width"], scene["height"], inputs["background"],
-    )  # fmt: skip
-    g = torch.Generator().manual_seed(1000 + seed)
-    cotangents = [torch.randn(o.shape, generator=g) for o in outputs]
-    torch.autograd.backward(outputs, cotangents)
-    return tuple(o.detach() for o in outputs), {k: v.grad for k, v in inputs.items()}
-
-
-def assert_grad_close(actual: torch.Tensor, expected: torch.Tensor, name: str, rel: float = 1e-4) -> None:
-    """Every entry within rel * (|expected| + max |expected|) of the oracle."""
-    scale = expected.abs().max().item()
-    err = (actual - expected).abs()
-    bound = rel * (expected.abs() + scale) + 1e-12
-    worst = (err / bound).max().item()
-    assert worst <= 1.0, f"{name}: max error {err.max().item():.3g} (scale {scale:.3g})"
+from tests.render.cpu_scenes import GRAD_INPUTS, HEIGHT, WIDTH, assert_grad_close, make_scene, run
 
 
 @pytest.mark.parametrize("n_dim", [1, 3])
@@ -270,39 +179,9 @@ def test_float64_inputs_and_shape_errors() -> None:
         cpu.rasterize(args[0], args[1][:, :2], *args[2:], scene["radii"], WIDTH, HEIGHT)
 
 
-def test_depth_sort_keys_order_floats() -> None:
-    depths = np.array([3.0, -2.0, 0.0, -0.0, 1e-30, -1e30, 7.5, 3.0], np.float32)
-    keys = cpu.depth_sort_keys(depths)
-    order = np.lexsort((np.arange(len(depths)), keys))
-    assert list(order) == list(np.lexsort((np.arange(len(depths)), depths + 0.0)))
-
-
-def test_exp_clamped_is_within_one_ulp_of_exact_exp() -> None:
-    """The kernels' own exp against float64 NumPy on [-8, 0]; below -8 it stays < 1/255."""
-    x = np.concatenate([np.linspace(-8, 0, 400_001), -np.logspace(-12, np.log10(8), 20_001)]).astype(np.float32)
-    got = np.array([cpu._k.exp_clamped(v) for v in x[::97]] + [cpu._k.exp_clamped(v) for v in x[-500:]], np.float32)
-    want = np.exp(np.concatenate([x[::97], x[-500:]]).astype(np.float64))
-    ulp = np.spacing(want.astype(np.float32)).astype(np.float64)
-    assert np.max(np.abs(got - want) / ulp) <= 1.0
-    assert cpu._k.exp_clamped(np.float32(0.0)) == 1.0
-    for below in (-8.5, -30.0, -1e30):
-        assert 0 < cpu._k.exp_clamped(np.float32(below)) < ALPHA_MIN
-
-
-def test_balance_tiles_deals_every_tile_once() -> None:
-    cost = np.array([5.0, 0.0, 9.0, 1.0, 9.0, 3.0, 2.0])
-    for n_workers in (1, 2, 3, 8):
-        offsets, tiles = cpu._k.balance_tiles(cost, n_workers)
-        assert offsets[0] == 0 and offsets[-1] == len(cost)
-        assert sorted(tiles.tolist()) == list(range(len(cost)))
-    offsets, tiles = cpu._k.balance_tiles(cost, 2)
-    loads = [cost[tiles[offsets[w] : offsets[w + 1]]].sum() for w in range(2)]
-    assert abs(loads[0] - loads[1]) <= cost.max()
-
-
 def test_matches_dense_yardstick_of_the_bench() -> None:
-    """A third oracle: every Gaussian-pixel pair composited densely (``ftgspp.bench``)."""
-    from ftgspp.bench import dense_rasterize
+    """A third oracle: every Gaussian-pixel pair composited densely (``ftgspp.bench.yardstick``)."""
+    from ftgspp.bench.yardstick import dense_rasterize
 
     scene = make_scene(9)
     (image, alpha, depth), grads = run(cpu.rasterize, scene)
@@ -320,27 +199,6 @@ def test_matches_dense_yardstick_of_the_bench() -> None:
         assert_grad_close(grads[name], inputs[name].grad, name)
 
 
-def test_bench_render_prints_one_json_line(capsys: pytest.CaptureFixture[str]) -> None:
-    import json
-
-    from ftgspp.bench import main
-
-    argv = ["render", "--n", "200", "--width", "40", "--height", "30", "--repeats", "2", "--warmup", "1",
-            "--no-compile-times", "--json"]  # fmt: skip
-    assert main(argv) == 0
-    lines = capsys.readouterr().out.strip().splitlines()
-    assert len(lines) == 1
-    result = json.loads(lines[0])
-    assert {"reference", "cpu"} <= set(result["backends"])
-    for name, t in result["backends"].items():
-        assert t["fwd_ms"] > 0 and t["fwd_bwd_ms"] > 0 and result["ratios"][name]["fwd_bwd"] > 0
-    assert (result["n"], result["width"], result["height"]) == (200, 40, 30)
-    assert set(result["numba_compile_s"]) == {"cold", "cached", "cold_raster_ms", "cached_raster_ms"}
-    stages = result["stages"]  # the other stages of a cpu render, each against what it replaces
-    assert set(stages["prepare"]) == {"autograd_ms", "fused_ms"} and set(stages["ssim_loss"]) == {"conv2d_ms", "numba_ms"}
-    assert all(t > 0 for stage in stages.values() for t in stage.values())
-
-
 def test_editing_an_input_before_backward_raises() -> None:
     """Inputs are saved, not copied: an in-place edit before backward is an error, never stale gradients."""
     scene = make_scene(10)
@@ -352,73 +210,3 @@ def test_editing_an_input_before_backward_raises() -> None:
         means2d.add_(1.0)
     with pytest.raises(RuntimeError, match="inplace"):
         image.sum().backward()
-
-
-def test_too_many_gaussians_on_one_tile_is_an_error(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Stop slots live in float32 tile state; a tile list that long is refused, not mis-rendered."""
-    scene = make_scene(10)
-    monkeypatch.setattr(cpu._k, "MAX_TILE_LIST", 8)  # any real scene has a tile with more
-    with pytest.raises(ValueError, match="overlap one 16x16 tile"):
-        run(cpu.rasterize, scene)
-
-
-_COMPILE_OR_LOAD = """
-import hashlib, json, torch
-from ftgspp.bench import project_scene, random_scene
-from ftgspp.render import cpu
-from ftgspp.render import cpu_kernels as k
-inputs = project_scene(random_scene(300, 64, 48, seed=5))
-leaves = [inputs[n].clone().requires_grad_(True) for n in ("means2d", "conics", "colors", "opacities", "depths")]
-outs = cpu.rasterize(*leaves, inputs["radii"], 64, 48, inputs["background"])
-g = torch.Generator().manual_seed(6)
-torch.autograd.backward(outs, [torch.randn(o.shape, generator=g) for o in outs])
-digest = hashlib.sha256()
-for t in (*outs, *(leaf.grad for leaf in leaves)):
-    digest.update(t.detach().numpy().tobytes())
-standalone = {name: len(getattr(k, name).signatures) for name in ("_forward_tile", "_backward_tile")}
-hits = sum(sum(getattr(k, name).stats.cache_hits.values()) for name in ("render_forward", "render_backward"))
-print(json.dumps({"sha": digest.hexdigest(), "standalone": standalone, "cache_hits": hits}))
-"""
-
-
-@pytest.mark.slow
-def test_the_process_that_compiles_the_kernels_runs_the_same_code_as_one_that_loads_them(tmp_path) -> None:
-    """In a process that compiled them, the JIT linker bound the parallel kernels' calls to a
-    standalone copy of the per-tile kernels (slower code; the rasterizer ran 5-6x slower
-    there than in processes that loaded the cache). The tile kernels must exist only inlined
-    into their parallel kernels, and both kinds of process must give the same bits."""
-    import json
-    import os
-    import subprocess
-    import sys
-
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))  # empty: the first process compiles
-    runs = []
-    for _ in range(2):  # compile, then load from the cache
-        proc = subprocess.run([sys.executable, "-c", _COMPILE_OR_LOAD], env=env, capture_output=True, text=True)
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        runs.append(json.loads(proc.stdout.strip().splitlines()[-1]))
-    compiled, loaded = runs
-    assert (compiled["cache_hits"], loaded["cache_hits"]) == (0, 2)  # compiled, then loaded
-    assert compiled["standalone"] == {"_forward_tile": 0, "_backward_tile": 0}
-    assert compiled["sha"] == loaded["sha"]
-
-
-def test_bench_render_reports_the_compile_probe(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The probe's two subprocesses (cold, cached) each print first-call seconds and raster ms."""
-    import subprocess
-
-    from ftgspp import bench
-
-    outputs = iter(["numba noise\n21.5 4.25\n", "0.5 4.0\n"])
-    monkeypatch.setattr(bench.subprocess, "run",
-                        lambda argv, **kw: subprocess.CompletedProcess(argv, 0, stdout=next(outputs), stderr=""))
-    probe = bench.numba_compile_seconds()
-    assert probe == {"cold": 21.5, "cached": 0.5, "cold_raster_ms": 4.25, "cached_raster_ms": 4.0}
-    result = {"n": 10, "n_visible": 10, "width": 32, "height": 24, "repeats": 1, "ratios": {}, "yardstick": None,
-              "backends": {"cpu": {"fwd_ms": 1.0, "fwd_bwd_ms": 2.0}}, "numba_compile_s": probe,
-              "load_average": [0.0, 0.0], "cpu_count": 2}  # fmt: skip
-    table = bench.format_render_table(result)
-    assert "cold 21.5 s, cached 0.50 s" in table and "4.25 ms" in table and "(1.06x)" in table
-    failed = dict(probe, cached=None, cached_raster_ms=None)  # the cached probe failed: no line, no crash
-    assert "numba compile" not in bench.format_render_table(dict(result, numba_compile_s=failed))

@@ -1,9 +1,18 @@
-"""``ftgspp bench train`` runs every CPU backend through the real trainer and reports ratios."""
+"""``ftgspp bench train`` runs every CPU backend through the real trainer and reports ratios;
+``PhaseTimer`` charges exclusive time per phase; ``bench scale`` fits its exponents.
+
+Timings are printed, never asserted: these tests check the output's shape, tables and
+parsing, and drive ``PhaseTimer`` with a fake clock.
+"""
 
 import json
-import time
+import types
+
+import pytest
 
 from ftgspp.bench import main
+from ftgspp.bench.train import format_train_table
+from ftgspp.errors import InputError
 
 
 def test_bench_train_json(capsys):
@@ -28,44 +37,58 @@ def test_breakdown_covers_the_pipeline_and_adds_up(capsys):
     for phase in ("model at time t", "projection", "SH colour", "rasterize forward"):
         assert phase in ref and ref[phase] > 0, phase
     assert all(v >= 0 for k, v in cpu.items() if k != "other (Python, glue)")
+    lines = format_train_table(out).splitlines()  # the table: one row per backend, one per phase, a total
+    assert lines[0].startswith("training iteration, 200 Gaussians, 64x48, 6 iterations x 1 repeats")
+    assert [line.split()[0] for line in lines[2:4]] == ["cpu", "reference"] and lines[3].split()[-1] == "1.0x"
+    assert lines[5].startswith("per-phase ms per iteration") and lines[6].split()[1:] == ["cpu", "reference"]
+    assert lines[-1].startswith("total") and len(lines) == 7 + len(set(cpu) | set(ref)) + 1
 
 
 class Pipeline:
-    """Two nested seams for the timer test."""
+    """Two nested seams for the timer test; each advances the fake clock by its own time."""
+
+    clock = 0.0
 
     @staticmethod
     def outer():
-        time.sleep(0.02)
+        Pipeline.clock += 0.02
         Pipeline.inner()
 
     @staticmethod
     def inner():
-        time.sleep(0.03)
+        Pipeline.clock += 0.03
 
 
-def test_phase_timer_charges_exclusive_time_and_restores_the_seams():
+def test_phase_timer_charges_exclusive_time_and_restores_the_seams(monkeypatch):
     """Nested timed calls: the parent is charged its own time only; only the loop counts;
     the seams are unwrapped afterwards."""
-    import ftgspp.bench_phases as bp
+    import ftgspp.bench.phases as bp
     import ftgspp.trainer as trainer
 
+    monkeypatch.setattr(bp, "time", types.SimpleNamespace(perf_counter=lambda: Pipeline.clock))
     seams = (("outer", f"{__name__}:Pipeline.outer"), ("inner", f"{__name__}:Pipeline.inner"))
     original_loop, original_outer = trainer._loop, Pipeline.__dict__["outer"]
     with bp.PhaseTimer(seams) as timer:
         Pipeline.outer()  # outside the trainer's loop: not counted
         assert dict(timer.totals) == {}
         timer._gate(Pipeline.outer)()
-    assert 0.015 < timer.totals["outer"] < 0.029 and 0.025 < timer.totals["inner"]
+    assert timer.totals["outer"] == pytest.approx(0.02) and timer.totals["inner"] == pytest.approx(0.03)
+    assert timer.loop_seconds == pytest.approx(0.05) and dict(timer.calls) == {"outer": 1, "inner": 1}
     ms = timer.per_iteration(1)
     assert abs(sum(ms.values()) - 1000 * timer.loop_seconds) < 1e-6
     assert trainer._loop is original_loop and Pipeline.__dict__["outer"] is original_outer
 
 
 def test_fit_recovers_planted_exponents():
-    from ftgspp.bench_train import fit_exponents
+    from ftgspp.bench.scale import fit_exponents
 
     points = [{"n": n, "pixels": p, "ms_per_iter": 0.002 * n**0.8 * p**0.5} for n in (1e3, 5e3, 2e4)
               for p in (12288, 49152)]
     fit = fit_exponents(points)
     assert abs(fit["exponent_n"] - 0.8) < 1e-9 and abs(fit["exponent_pixels"] - 0.5) < 1e-9
     assert abs(fit["a_ms"] - 0.002) < 1e-9
+
+
+def test_scale_sizes_are_parsed_before_anything_runs():
+    with pytest.raises(InputError, match="--sizes.*WxH"):
+        main(["scale", "--sizes", "128x96,256"])

@@ -1,0 +1,86 @@
+"""Command line of ``ftgspp bench``: parses ``render`` / ``train`` / ``scale`` and prints each
+result as a table or, with ``--json``, as one JSON line.
+
+    ftgspp bench render [--n 5000] [--width 128 --height 96] [--repeats 10] [--json]
+    ftgspp bench train [--iterations 200] [--budget 5000] [--repeats 2] [--breakdown] [--json]
+    ftgspp bench scale [--counts 1000,5000,20000,100000] [--sizes 128x96,256x192,512x384] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ftgspp.errors import InputError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``ftgspp bench`` parser with its three subcommands."""
+    parser = argparse.ArgumentParser(prog="ftgspp bench", description="Time rasterization and training.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    render = sub.add_parser("render", help="forward / forward+backward of every rasterization backend")
+    render.add_argument("--n", type=int, default=5000, help="number of 3D Gaussians")
+    render.add_argument("--width", type=int, default=128)
+    render.add_argument("--height", type=int, default=96)
+    render.add_argument("--repeats", type=int, default=10, help="timed repeats per backend (median)")
+    render.add_argument("--warmup", type=int, default=2)
+    render.add_argument("--yardstick-repeats", type=int, default=1, help="0 skips the dense yardstick")
+    render.add_argument("--no-compile-times", action="store_true", help="skip the Numba compile probe")
+    render.add_argument("--seed", type=int, default=0)
+    render.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
+    train = sub.add_parser("train", help="whole training iterations of every backend (ftgspp/bench/train.py)")
+    train.add_argument("--iterations", type=int, default=200)
+    train.add_argument("--budget", type=int, default=5000, help="number of Gaussians")
+    train.add_argument("--repeats", type=int, default=2)
+    train.add_argument("--width", type=int, default=128)
+    train.add_argument("--height", type=int, default=96)
+    train.add_argument("--backends", default="", help="comma-separated (default: every available one)")
+    train.add_argument("--breakdown", action="store_true", help="also time every phase of an iteration")
+    train.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
+    scale = sub.add_parser("scale", help="cost of an iteration over Gaussian counts x resolutions")
+    scale.add_argument("--counts", default="1000,5000,20000,100000")
+    scale.add_argument("--sizes", default="128x96,256x192,512x384")
+    scale.add_argument("--iterations", type=int, default=30)
+    scale.add_argument("--backend", default="cpu")
+    scale.add_argument("--plot", type=Path, default=Path("benchmarks/cost_curve.png"))
+    scale.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
+    return parser
+
+
+def _sizes(text: str) -> list[tuple[int, int]]:
+    try:
+        return [(int(w), int(h)) for w, h in (s.lower().split("x") for s in text.split(","))]
+    except ValueError:
+        raise InputError("--sizes", f"expected WxH[,WxH...], got {text!r}") from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``ftgspp bench``. Returns the exit status."""
+    args = build_parser().parse_args(argv)
+    if args.command == "render":
+        from ftgspp.bench.render import bench_render, format_render_table
+
+        result = bench_render(
+            n=args.n, width=args.width, height=args.height, repeats=args.repeats, warmup=args.warmup,
+            yardstick_repeats=args.yardstick_repeats, compile_times=not args.no_compile_times, seed=args.seed,
+        )  # fmt: skip
+        print(json.dumps(result) if args.json else format_render_table(result))
+        return 0
+    if args.command == "train":
+        from ftgspp.bench.train import bench_train, format_train_table
+
+        result = bench_train(iterations=args.iterations, budget=args.budget, repeats=args.repeats,
+                             width=args.width, height=args.height, breakdown=args.breakdown,
+                             backends=[b for b in args.backends.split(",") if b] or None)
+        print(json.dumps(result) if args.json else format_train_table(result))
+        return 0
+    from ftgspp.bench.scale import bench_scale, format_scale_table, plot_scale
+
+    counts = [int(c) for c in args.counts.split(",")]
+    result = bench_scale(counts, _sizes(args.sizes), args.iterations, args.backend,
+                         echo=(lambda s: print(s, file=sys.stderr)) if args.json else print)
+    result["plot"] = str(plot_scale(result, args.plot))
+    print(json.dumps(result) if args.json else format_scale_table(result) + f"\nplot: {result['plot']}")
+    return 0

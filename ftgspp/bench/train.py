@@ -1,0 +1,119 @@
+"""``ftgspp bench train``: whole training iterations of every backend, timed.
+
+It times what ``ftgspp.trainer.train`` does per step — evaluate the Gaussians at the
+frame's time, project, render, loss (L1 + SSIM + regularisers), backward, Adam, and
+relocation every 100 iterations (amortised) — for every backend, on the same small
+synthetic scene from the same seed. Backends alternate between repeats; the figure is the
+median of the trainer's own loop clock (``train_seconds``), so initialisation and
+evaluation are not counted. ``reference`` (pure PyTorch autograd everywhere, the
+correctness oracle) is the slow path the ``cpu`` backend is compared with in the same run.
+``--breakdown`` adds one more run per backend under ``PhaseTimer`` (``phases.py``):
+milliseconds per phase of an iteration.
+
+    ftgspp bench train [--iterations 200] [--budget 5000] [--repeats 2] [--breakdown] [--json]
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ftgspp.bench.phases import PhaseTimer
+from ftgspp.bench.timing import usable_backends
+from ftgspp.config import DataConfig, TrainConfig
+from ftgspp.data.load import load_scene
+from ftgspp.data.synthetic import generate
+
+
+def bench_config(out_dir: Path, scene_dir: Path, backend: str, iterations: int, budget: int, seed: int) -> TrainConfig:
+    """The benchmark's run: relocation every 100 iterations from the start, no diagnostics."""
+    cfg = TrainConfig(iterations=iterations, budget=budget, backend=backend, seed=seed, progress=False,
+                      diagnostics=False, resume=False, out_dir=str(out_dir), checkpoint_every=10**9)
+    cfg.data.path = str(scene_dir)
+    cfg.init.keyframe_stride = 5
+    cfg.strategy.refine_start_iter = 0
+    cfg.strategy.refine_stop_iter = iterations + 1
+    return cfg
+
+
+def bench_scene(root: Path, width: int, height: int, seed: int) -> Path:
+    """The benchmark's synthetic studio scene (8 cameras, 10 frames) under ``root``; returns its folder."""
+    return generate(root / f"scene_{width}x{height}", preset="studio", seed=seed, width=width, height=height,
+                    n_frames=10, n_cameras=8)
+
+
+def bench_train(
+    iterations: int = 200, budget: int = 5000, repeats: int = 2, width: int = 128, height: int = 96,
+    backends: list[str] | None = None, seed: int = 0, breakdown: bool = False,
+) -> dict[str, Any]:
+    """Median milliseconds per training iteration for each backend (and ratios to ``reference``).
+
+    With ``breakdown``, ``result["breakdown"][backend]`` maps phase -> ms per iteration.
+    """
+    from ftgspp.trainer import train
+
+    backends = backends or usable_backends()
+    with tempfile.TemporaryDirectory(prefix="ftgspp-bench-") as tmp:
+        root = Path(tmp)
+        scene_dir = bench_scene(root, width, height, seed)
+        scene = load_scene(DataConfig(path=str(scene_dir)))
+        per_it: dict[str, list[float]] = {b: [] for b in backends}
+        for b in backends:  # warm-up: Numba compiles (or loads its cache) on first use
+            train(bench_config(root / f"{b}_warmup", scene_dir, b, 3, budget, seed), scene)
+        for r in range(repeats):
+            for b in backends:
+                result = train(bench_config(root / f"{b}_{r}", scene_dir, b, iterations, budget, seed), scene)
+                per_it[b].append(1000.0 * result.metrics["train_seconds"] / iterations)
+        phases: dict[str, dict[str, float]] = {}
+        if breakdown:
+            for b in backends:
+                with PhaseTimer() as timer:
+                    train(bench_config(root / f"{b}_phases", scene_dir, b, iterations, budget, seed), scene)
+                phases[b] = timer.per_iteration(iterations)
+    ms = {b: statistics.median(v) for b, v in per_it.items()}
+    ref = ms.get("reference")
+    out = {
+        "iterations": iterations, "budget": budget, "width": width, "height": height, "repeats": repeats,
+        "threads": torch.get_num_threads(),
+        "backends": {b: {"ms_per_iter": ms[b], "iters_per_second": 1000.0 / ms[b], "all_ms": per_it[b]}
+                     for b in backends},
+        "speedup_vs_reference": {b: ref / ms[b] for b in backends} if ref else {},
+    }
+    if breakdown:
+        out["breakdown"] = phases
+    return out
+
+
+def format_train_table(result: dict[str, Any]) -> str:
+    """A small text table of ``bench_train`` output (plus the per-phase breakdown if present)."""
+    lines = [f"training iteration, {result['budget']} Gaussians, {result['width']}x{result['height']}, "
+             f"{result['iterations']} iterations x {result['repeats']} repeats (median), "
+             f"{result.get('threads', '?')} threads",
+             f"{'backend':<10} {'ms/iter':>9} {'it/s':>8} {'vs reference':>13}"]
+    for b, r in result["backends"].items():
+        sp = result["speedup_vs_reference"].get(b)
+        lines.append(f"{b:<10} {r['ms_per_iter']:>9.2f} {r['iters_per_second']:>8.1f} "
+                     f"{(f'{sp:.1f}x' if sp else '-'):>13}")
+    if result.get("breakdown"):
+        lines += ["", format_breakdown(result["breakdown"])]
+    return "\n".join(lines)
+
+
+def format_breakdown(breakdown: dict[str, dict[str, float]]) -> str:
+    """Phases as rows, backends as columns, ms per iteration (instrumented run)."""
+    names = list(breakdown)
+    phases: list[str] = []
+    for b in names:
+        phases += [p for p in breakdown[b] if p not in phases]
+    width = max(len(p) for p in phases) + 2
+    lines = ["per-phase ms per iteration (one instrumented run per backend)",
+             f"{'phase':<{width}}" + "".join(f"{b:>12}" for b in names)]
+    for p in phases:
+        lines.append(f"{p:<{width}}" + "".join(
+            f"{breakdown[b][p]:>12.2f}" if p in breakdown[b] else f"{'-':>12}" for b in names))
+    lines.append(f"{'total':<{width}}" + "".join(f"{sum(breakdown[b].values()):>12.2f}" for b in names))
+    return "\n".join(lines)

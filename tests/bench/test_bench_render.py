@@ -1,0 +1,48 @@
+"""``ftgspp bench render``: its JSON line and table, and the parsing of its compile probe.
+
+Timings are printed, never asserted: only that each figure is there and positive.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import pytest
+
+from ftgspp.bench import compile_probe, main
+from ftgspp.bench.render import format_render_table
+
+
+def test_bench_render_prints_one_json_line(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["render", "--n", "200", "--width", "40", "--height", "30", "--repeats", "2", "--warmup", "1",
+            "--no-compile-times", "--json"]  # fmt: skip
+    assert main(argv) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1
+    result = json.loads(lines[0])
+    assert {"reference", "cpu"} <= set(result["backends"])
+    for name, t in result["backends"].items():
+        assert t["fwd_ms"] > 0 and t["fwd_bwd_ms"] > 0 and result["ratios"][name]["fwd_bwd"] > 0
+    assert (result["n"], result["width"], result["height"]) == (200, 40, 30)
+    assert set(result["numba_compile_s"]) == {"cold", "cached", "cold_raster_ms", "cached_raster_ms"}
+    stages = result["stages"]  # the other stages of a cpu render, each against what it replaces
+    assert set(stages["prepare"]) == {"autograd_ms", "fused_ms"}
+    assert set(stages["ssim_loss"]) == {"conv2d_ms", "numba_ms"}
+    assert all(t > 0 for stage in stages.values() for t in stage.values())
+
+
+def test_bench_render_reports_the_compile_probe(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The probe's two subprocesses (cold, cached) each print first-call seconds and raster ms."""
+    outputs = iter(["numba noise\n21.5 4.25\n", "0.5 4.0\n"])
+    monkeypatch.setattr(compile_probe.subprocess, "run",
+                        lambda argv, **kw: subprocess.CompletedProcess(argv, 0, stdout=next(outputs), stderr=""))
+    probe = compile_probe.numba_compile_seconds()
+    assert probe == {"cold": 21.5, "cached": 0.5, "cold_raster_ms": 4.25, "cached_raster_ms": 4.0}
+    result = {"n": 10, "n_visible": 10, "width": 32, "height": 24, "repeats": 1, "ratios": {}, "yardstick": None,
+              "backends": {"cpu": {"fwd_ms": 1.0, "fwd_bwd_ms": 2.0}}, "numba_compile_s": probe,
+              "load_average": [0.0, 0.0], "cpu_count": 2}  # fmt: skip
+    table = format_render_table(result)
+    assert "cold 21.5 s, cached 0.50 s" in table and "4.25 ms" in table and "(1.06x)" in table
+    failed = dict(probe, cached=None, cached_raster_ms=None)  # the cached probe failed: no line, no crash
+    assert "numba compile" not in format_render_table(dict(result, numba_compile_s=failed))

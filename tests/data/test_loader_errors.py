@@ -1,0 +1,169 @@
+"""Scene loaders on bad input: every broken file or option is one ``InputError`` naming it.
+
+Scenes are the tiny folders of ``fixtures.py``, broken one way at a time: before loading
+(wrong shapes, NaN, corrupt files, missing entries, bad options) and after loading, while
+frames are decoded (files removed, truncated or resized). The message is one line.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from ftgspp.config import DataConfig
+from ftgspp.data.load import load_scene
+from ftgspp.errors import InputError
+
+try:  # tests/ importable as a package
+    from tests.data import fixtures as fx
+except ImportError:  # pytest's default "prepend" import mode puts this folder on sys.path
+    import fixtures as fx  # type: ignore[no-redef]
+
+
+def _poses(root: Path) -> np.ndarray:
+    return np.load(root / "poses_bounds.npy")
+
+
+def _corrupt_bytes(path: Path) -> None:
+    path.write_bytes(b"this is not what it claims to be" * 8)
+
+
+DYNERF_BAD = {
+    "poses wrong shape": (lambda r: np.save(r / "poses_bounds.npy", _poses(r)[:, :15]), {}, "poses_bounds.npy"),
+    "poses NaN": (
+        lambda r: np.save(r / "poses_bounds.npy", np.where(np.eye(4, 17, 3) > 0, np.nan, _poses(r))),
+        {},
+        "poses_bounds.npy",
+    ),
+    "poses Inf": (
+        lambda r: np.save(r / "poses_bounds.npy", np.where(np.eye(4, 17, 16) > 0, np.inf, _poses(r))),
+        {},
+        "poses_bounds.npy",
+    ),
+    "poses not npy": (lambda r: _corrupt_bytes(r / "poses_bounds.npy"), {}, "poses_bounds.npy"),
+    "poses not a rotation": (
+        lambda r: np.save(r / "poses_bounds.npy", _poses(r) * np.r_[[2.0] * 3, [1.0] * 14]),
+        {},
+        "poses_bounds.npy",
+    ),
+    "more rows than videos": (
+        lambda r: np.save(r / "poses_bounds.npy", np.vstack([_poses(r), _poses(r)[:1]])),
+        {},
+        "poses_bounds.npy.*5 camera rows.*4 videos",
+    ),
+    "fewer rows than videos": (
+        lambda r: np.save(r / "poses_bounds.npy", _poses(r)[:3]),
+        {},
+        "poses_bounds.npy.*3 camera rows.*4 videos",
+    ),
+    "corrupt video": (lambda r: _corrupt_bytes(r / "cam02.mp4"), {}, "cam02.mp4"),
+    "short video": (
+        lambda r: fx.write_video(r / "cam01.mp4", [fx.render_frame(fx.ring_cameras(["x"])[0], 0.0)] * 3, 30.0),
+        dict(frame_end=5),
+        "cam01.mp4.*3 frames.*needs 5",
+    ),
+    "range past every video": (lambda r: None, dict(frame_start=6), "cam00.mp4.*6 frames"),
+    "video of another aspect": (
+        lambda r: fx.write_video(r / "cam03.mp4", [np.zeros((24, 40, 3), np.uint8)] * 6, 30.0),
+        {},
+        "cam03.mp4.*40x24",
+    ),
+    "empty frame range": (lambda r: None, dict(frame_start=3, frame_end=3), "data.frame_end.*empty"),
+    "negative frame start": (lambda r: None, dict(frame_start=-1), "data.frame_start"),
+    "unknown drop camera": (lambda r: None, dict(drop_cameras=["cam13"]), "data.drop_cameras.*cam13"),
+    "every camera dropped": (
+        lambda r: None, dict(drop_cameras=["cam00", "cam01", "cam02", "cam03"]), "data.drop_cameras.*every"
+    ),
+    "unknown test camera": (lambda r: None, dict(test_cameras=["cam13"]), "data.test_cameras.*cam13"),
+    "downsample below 1": (lambda r: None, dict(downsample=0.5), "data.downsample"),
+    "unknown format": (lambda r: None, dict(format="llff"), "data.format.*llff"),
+    "missing folder": (lambda r: None, dict(path="/nonexistent/scene"), "/nonexistent/scene.*not found"),
+}
+
+
+@pytest.mark.parametrize("case", list(DYNERF_BAD))
+def test_dynerf_bad_input_raises_input_error(tmp_path, case):
+    mutate, options, pattern = DYNERF_BAD[case]
+    root = fx.write_dynerf(tmp_path / "s", n_frames=6)
+    mutate(root)
+    with pytest.raises(InputError, match=pattern) as err:
+        load_scene(DataConfig(**{"path": str(root), **options}))
+    assert "\n" not in str(err.value)
+
+
+def _drop_line(path: Path, prefix: str) -> None:
+    """Remove the yml entry starting with ``prefix`` (and its indented continuation lines)."""
+    out, skipping = [], False
+    for line in path.read_text().splitlines(keepends=True):
+        if line.startswith(prefix):
+            skipping = True
+            continue
+        if skipping and line.startswith("   "):
+            continue
+        skipping = False
+        out.append(line)
+    path.write_text("".join(out))
+
+
+EASYVOLCAP_BAD = {
+    "intri missing K": (lambda r: _drop_line(r / "intri.yml", "K_01:"), {}, "intri.yml.*K_01"),
+    "intri missing names": (lambda r: _drop_line(r / "intri.yml", "names:"), {}, "intri.yml.*names"),
+    "extri missing T": (lambda r: _drop_line(r / "extri.yml", "T_02:"), {}, "extri.yml.*T_02"),
+    "extri missing R": (lambda r: _drop_line(r / "extri.yml", "R_00:"), {}, "extri.yml.*R_00"),
+    "extri not yaml": (lambda r: _corrupt_bytes(r / "extri.yml"), {}, "extri.yml"),
+    "intri missing file": (lambda r: (r / "intri.yml").unlink(), dict(format="easyvolcap"), "intri.yml.*not found"),
+    "K with NaN": (
+        lambda r: (r / "intri.yml").write_text((r / "intri.yml").read_text().replace("data: [ 30", "data: [ .NaN", 1)),
+        {},
+        "intri.yml.*K_00.*NaN",
+    ),
+    "missing image": (lambda r: (r / "images" / "01" / "000003.png").unlink(), dict(frame_end=6), "01/000003.png"),
+    "missing image folder": (lambda r: os.rename(r / "images" / "02", r / "images" / "x"), {}, "images/02"),
+    "range past images": (lambda r: None, dict(frame_end=9), "000006.png.*6 frames.*needs 9"),
+    "unknown test camera": (lambda r: None, dict(test_cameras=["cam07"]), "data.test_cameras.*cam07"),
+    "bad scene.json": (lambda r: (r / "scene.json").write_text("{fps: "), {}, "scene.json"),
+}
+
+
+@pytest.mark.parametrize("case", list(EASYVOLCAP_BAD))
+def test_easyvolcap_bad_input_raises_input_error(tmp_path, case):
+    mutate, options, pattern = EASYVOLCAP_BAD[case]
+    root = fx.write_easyvolcap(tmp_path / "s", n_frames=6)
+    mutate(root)
+    with pytest.raises(InputError, match=pattern) as err:
+        load_scene(DataConfig(**{"path": str(root), **options}))
+    assert "\n" not in str(err.value)
+
+
+LAZY_BAD = {
+    "dynerf video removed": ("dynerf", lambda r: (r / "cam01.mp4").unlink(), "cam01.mp4"),
+    "dynerf video truncated": (
+        "dynerf",
+        lambda r: fx.write_video(r / "cam01.mp4", [fx.render_frame(fx.ring_cameras(["x"])[0], 0.0)] * 2, 30.0),
+        "cam01.mp4.*decoding stopped",
+    ),
+    "easyvolcap corrupt image": (
+        "easyvolcap",
+        lambda r: _corrupt_bytes(r / "images" / "01" / "000002.png"),
+        "000002.png",
+    ),
+    "easyvolcap resized image": (
+        "easyvolcap",
+        lambda r: cv2.imwrite(str(r / "images" / "01" / "000001.png"), np.zeros((12, 16, 3), np.uint8)),
+        "000001.png.*16x12",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(LAZY_BAD))
+def test_decode_failure_after_loading_raises_input_error(tmp_path, case):
+    layout, mutate, pattern = LAZY_BAD[case]
+    scene = load_scene(DataConfig(path=str(fx.write_scene(layout, tmp_path / "s", n_frames=4))))
+    mutate(scene.root)  # the files change between loading and decoding
+    with pytest.raises(InputError, match=pattern):
+        scene.frames(1)
+    assert not list(scene.cache_dir.glob("*.npy"))  # nothing half-written to the cache

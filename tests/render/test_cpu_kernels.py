@@ -1,0 +1,91 @@
+"""Pieces of the ``cpu`` rasterizer's Numba kernels: depth sort keys, the clamped exp, the
+tile balancing, the tile-list limit, and compiled vs cache-loaded kernels (same bits)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ftgspp.render import cpu
+from ftgspp.render.contract import ALPHA_MIN
+from tests.render.cpu_scenes import make_scene, run
+
+
+def test_depth_sort_keys_order_floats() -> None:
+    depths = np.array([3.0, -2.0, 0.0, -0.0, 1e-30, -1e30, 7.5, 3.0], np.float32)
+    keys = cpu.depth_sort_keys(depths)
+    order = np.lexsort((np.arange(len(depths)), keys))
+    assert list(order) == list(np.lexsort((np.arange(len(depths)), depths + 0.0)))
+
+
+def test_exp_clamped_is_within_one_ulp_of_exact_exp() -> None:
+    """The kernels' own exp against float64 NumPy on [-8, 0]; below -8 it stays < 1/255."""
+    x = np.concatenate([np.linspace(-8, 0, 400_001), -np.logspace(-12, np.log10(8), 20_001)]).astype(np.float32)
+    got = np.array([cpu._k.exp_clamped(v) for v in x[::97]] + [cpu._k.exp_clamped(v) for v in x[-500:]], np.float32)
+    want = np.exp(np.concatenate([x[::97], x[-500:]]).astype(np.float64))
+    ulp = np.spacing(want.astype(np.float32)).astype(np.float64)
+    assert np.max(np.abs(got - want) / ulp) <= 1.0
+    assert cpu._k.exp_clamped(np.float32(0.0)) == 1.0
+    for below in (-8.5, -30.0, -1e30):
+        assert 0 < cpu._k.exp_clamped(np.float32(below)) < ALPHA_MIN
+
+
+def test_balance_tiles_deals_every_tile_once() -> None:
+    cost = np.array([5.0, 0.0, 9.0, 1.0, 9.0, 3.0, 2.0])
+    for n_workers in (1, 2, 3, 8):
+        offsets, tiles = cpu._k.balance_tiles(cost, n_workers)
+        assert offsets[0] == 0 and offsets[-1] == len(cost)
+        assert sorted(tiles.tolist()) == list(range(len(cost)))
+    offsets, tiles = cpu._k.balance_tiles(cost, 2)
+    loads = [cost[tiles[offsets[w] : offsets[w + 1]]].sum() for w in range(2)]
+    assert abs(loads[0] - loads[1]) <= cost.max()
+
+
+def test_too_many_gaussians_on_one_tile_is_an_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Stop slots live in float32 tile state; a tile list that long is refused, not mis-rendered."""
+    scene = make_scene(10)
+    monkeypatch.setattr(cpu._k, "MAX_TILE_LIST", 8)  # any real scene has a tile with more
+    with pytest.raises(ValueError, match="overlap one 16x16 tile"):
+        run(cpu.rasterize, scene)
+
+
+_COMPILE_OR_LOAD = """
+import hashlib, json, torch
+from ftgspp.bench.scene import project_scene, random_scene
+from ftgspp.render import cpu
+from ftgspp.render import cpu_kernels as k
+inputs = project_scene(random_scene(300, 64, 48, seed=5))
+leaves = [inputs[n].clone().requires_grad_(True) for n in ("means2d", "conics", "colors", "opacities", "depths")]
+outs = cpu.rasterize(*leaves, inputs["radii"], 64, 48, inputs["background"])
+g = torch.Generator().manual_seed(6)
+torch.autograd.backward(outs, [torch.randn(o.shape, generator=g) for o in outs])
+digest = hashlib.sha256()
+for t in (*outs, *(leaf.grad for leaf in leaves)):
+    digest.update(t.detach().numpy().tobytes())
+standalone = {name: len(getattr(k, name).signatures) for name in ("_forward_tile", "_backward_tile")}
+hits = sum(sum(getattr(k, name).stats.cache_hits.values()) for name in ("render_forward", "render_backward"))
+print(json.dumps({"sha": digest.hexdigest(), "standalone": standalone, "cache_hits": hits}))
+"""
+
+
+@pytest.mark.slow
+def test_the_process_that_compiles_the_kernels_runs_the_same_code_as_one_that_loads_them(tmp_path) -> None:
+    """In a process that compiled them, the JIT linker bound the parallel kernels' calls to a
+    standalone copy of the per-tile kernels (slower code; the rasterizer ran 5-6x slower
+    there than in processes that loaded the cache). The tile kernels must exist only inlined
+    into their parallel kernels, and both kinds of process must give the same bits."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))  # empty: the first process compiles
+    runs = []
+    for _ in range(2):  # compile, then load from the cache
+        proc = subprocess.run([sys.executable, "-c", _COMPILE_OR_LOAD], env=env, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    compiled, loaded = runs
+    assert (compiled["cache_hits"], loaded["cache_hits"]) == (0, 2)  # compiled, then loaded
+    assert compiled["standalone"] == {"_forward_tile": 0, "_backward_tile": 0}
+    assert compiled["sha"] == loaded["sha"]
