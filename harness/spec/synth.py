@@ -10,12 +10,12 @@ def validate_synth(scene: StudyScene) -> None:
     """Check a synthetic scene's generator arguments without rendering (InputError if bad)."""
     if scene.synth is None:
         return
-    from ftgspp.data.synthetic import SCENE_LAYOUTS as LAYOUTS, resolve_config
+    from ftgspp.data.synthetic import SCENE_LAYOUTS, resolve_config
 
     args = dict(scene.synth)
     where = f"scene '{scene.name}' synth"
-    if args.get("layout") not in LAYOUTS:
-        raise InputError(where, f"unknown layout '{args.get('layout')}' (choose from {', '.join(LAYOUTS)})")
+    if args.get("layout") not in SCENE_LAYOUTS:
+        raise InputError(where, f"unknown layout '{args.get('layout')}' (choose from {', '.join(SCENE_LAYOUTS)})")
     extra = {k: v for k, v in args.items() if k not in {"preset", "seed", "layout"}}
     try:
         resolve_config(args["preset"], args["seed"], **extra)
