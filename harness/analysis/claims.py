@@ -1,229 +1,143 @@
-"""The paper's claims, tested on a study's runs: effect with 95% CI, statistic, Holm p, verdict.
+"""Claims tested on a study's runs: effect with CIs, the difference and equivalence tests.
 
-A claim (``studies.ClaimSpec``, the ``claims:`` list of a study file) names a metric, a
-comparison and the direction the paper expects. ``evaluate(df, claims)`` takes the report's
-per-run frame (``aggregate.runs_frame``: one row per run, FINISHED runs count) and returns
-one row per claim:
+A claim (``spec.study.ClaimSpec``) names a metric, a comparison, the direction expected, the
+smallest effect of interest (SESOI, fixed in the study file before the runs) and its family.
+``evaluate(df, claims)`` takes the per-run frame (``report.results.runs_frame``; FINISHED runs
+count) and returns one row per tested hypothesis with raw p-values; ``verdicts.decide`` then
+corrects them over a named family and gives each row its verdict.
 
-- ``mean``: variant ``a`` minus ``b``. Paired by seed (``pair: seed``, the default: every
-  variant of a study runs with the same seeds, so runs sharing (scene, seed) share their
-  initialisation and data order) with a paired t-test on the differences; ``pair: none``
-  uses Welch's t-test. Several scenes are pooled (pairs pooled; unpaired: all runs). With
-  no ``b``, a one-sample t-test of ``a`` against zero (per-run convention gaps).
-- ``variance``: spread of ``a`` against ``b`` with the Brown–Forsythe test (scipy's Levene,
-  ``center='median'``), never a t-test. Values are centred per (variant, scene) first, so
-  pooling scenes adds no between-scene spread. Effect: std(a) − std(b), bootstrap CI.
-- ``interaction``: the per-seed difference ``a`` − ``b`` on ``scenes[0]`` against the one on
-  ``scenes[1]`` (difference of differences), Welch's t-test between the two sets.
-- ``correlation``: Pearson r between ``metric`` and ``versus`` over every run, both centred
-  per scene (does a better metric on the same scene go with a better ``versus``?). The
-  claim ``weak`` is an equivalence test (two one-sided tests on Fisher's z) of |ρ| < threshold.
+- ``mean``: ``a`` − ``b``, paired by (scene, seed) (``pair: seed``: runs sharing them share
+  the initialisation and data order) with a paired t-test, or Welch (``pair: none``); no
+  ``b``: a one-sample t-test of ``a`` against 0. Equivalence: TOST within ±SESOI.
+- ``variance``: the SD ratio std(a)/std(b), values centred per (variant, scene); the
+  Brown–Forsythe test; percentile bootstrap CIs; equivalence when the 90% CI lies within
+  [1/SESOI, SESOI] (SESOI is a ratio here).
+- ``interaction``: the per-seed difference a − b on ``scenes[0]`` minus the one on
+  ``scenes[1]`` (Welch between the two sets).
+- ``contrast``: each weighted sum of variants per (scene, seed), one-sample t; all must hold
+  (an intersection–union test: p = the largest p, effect = the weakest contrast).
+- ``decoupled`` (existential): on some scene, a pair of variants equivalent in ``metric``
+  within ±SESOI (TOST) whose ``versus`` differs (paired t); p per pair = the larger of the
+  two, Bonferroni over the pairs tried.
 
-p-values are Holm-corrected over the claims of one study that could be tested. Verdict:
-**reproduced** (Holm p < α and the effect in the claimed direction), **contradicted** (Holm
-p < α, opposite direction; for ``weak``: the CI lies wholly outside ±threshold),
-**inconclusive** otherwise, with the runs per arm a two-sided test at α would need for 80%
-power at the observed effect; **not tested** when the runs a claim needs do not exist.
+A claim pooled over several scenes first tests the scene × variant interaction (one-way ANOVA
+of the paired differences by scene); when it is significant and the scenes' effects have
+opposite signs, the claim is tested per scene instead, each row labelled scene-dependent.
+A claim whose ``requires`` metric is below its minimum on the runs is "not exercised".
+Power and "runs needed" are for the SESOI, for the test used: statsmodels' t-test power with
+the SD these runs show, Brown–Forsythe power by simulation (``stats.n_for_bf``).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 import pandas as pd
-from scipy import stats
+from scipy import stats as sps
 
+from harness.analysis import stats
 from harness.spec.study import ClaimSpec
 
-ALPHA = 0.05
-POWER = 0.8
 CONFIDENCE = 0.95
-REPRODUCED, CONTRADICTED, INCONCLUSIVE, NOT_TESTED = "reproduced", "contradicted", "inconclusive", "not tested"
-COLUMNS = ["id", "statement", "paper_number", "metric", "test", "comparison", "method", "n", "effect", "ci_low",
-           "ci_high", "stat_name", "statistic", "p", "p_holm", "verdict", "n_needed", "note", "detail"]
+BOOT_SEED, BOOT_RESAMPLES = 0, 4000
 
 
 @dataclass
-class Comparison:
-    """What one comparison found, before the Holm correction."""
+class Result:
+    """One tested hypothesis, before the family correction."""
 
     method: str
     n: str  # e.g. "5 pairs", "5 vs 5"
     effect: float
-    ci: tuple[float, float]
+    ci: tuple[float, float]  # 95%
+    ci90: tuple[float, float]  # 90%: the equivalence test's interval
     stat_name: str
     statistic: float
-    p: float
-    needed: Callable[[], float] = field(default=lambda: math.nan, repr=False)  # runs per arm for 80% power
-    detail: str = ""  # e.g. the variance split of a variance claim
-    strong: bool = False  # correlation only: the CI lies wholly outside +-threshold
+    p: float  # the difference test (two-sided)
+    p_tost: float = math.nan  # equivalence within the SESOI
+    needed: Callable[[], float] = field(default=lambda: math.nan, repr=False)  # runs per arm at the SESOI
+    detail: str = ""
 
 
-# --------------------------------------------------------------------------- multiple testing
-
-
-def holm(pvalues: np.ndarray | list[float]) -> np.ndarray:
-    """Holm–Bonferroni adjusted p-values (step-down, monotone, capped at 1); NaN stays NaN."""
-    p = np.asarray(pvalues, dtype=float)
-    out = np.full_like(p, np.nan)
-    ok = np.flatnonzero(~np.isnan(p))
-    if len(ok) == 0:
-        return out
-    order = ok[np.argsort(p[ok], kind="stable")]
-    m = len(order)
-    adjusted = np.maximum.accumulate((m - np.arange(m)) * p[order])
-    out[order] = np.minimum(adjusted, 1.0)
-    return out
-
-
-# --------------------------------------------------------------------------- power
-
-
-def _smallest_n(power_at: Callable[[int], float], n_min: int = 2, n_max: int = 10**7) -> float:
-    """Smallest integer n >= n_min with ``power_at(n) >= POWER`` (inf beyond n_max)."""
-    if power_at(n_min) >= POWER:
-        return float(n_min)
-    lo, hi = n_min, n_min
-    while power_at(hi) < POWER:
-        lo, hi = hi, hi * 2
-        if hi > n_max:
-            return math.inf
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        lo, hi = (lo, mid) if power_at(mid) >= POWER else (mid, hi)
-    return float(hi)
-
-
-def n_for_t_test(d: float, paired: bool, alpha: float = ALPHA) -> float:
-    """Runs per arm (pairs when ``paired``) for a two-sided t-test at ``alpha`` to reach 80%
-    power at standardised effect ``d`` (Cohen's d; noncentral t)."""
-    if not np.isfinite(d) or d == 0:
-        return math.inf
-
-    def power_at(n: int) -> float:
-        df, nc = (n - 1, d * math.sqrt(n)) if paired else (2 * n - 2, d * math.sqrt(n / 2))
-        tc = stats.t.ppf(1 - alpha / 2, df)
-        return float(stats.nct.sf(tc, df, nc) + stats.nct.cdf(-tc, df, nc))
-
-    return _smallest_n(power_at)
-
-
-def n_for_variance_test(ratio: float, alpha: float = ALPHA) -> float:
-    """Runs per arm for a two-sided F-test of equal variances at ``alpha`` to reach 80% power
-    at variance ratio ``ratio`` (under normality; Brown–Forsythe needs somewhat more)."""
-    if not np.isfinite(ratio) or ratio <= 0 or ratio == 1:
-        return math.inf
-
-    def power_at(n: int) -> float:
-        lo, hi = stats.f.ppf(alpha / 2, n - 1, n - 1), stats.f.ppf(1 - alpha / 2, n - 1, n - 1)
-        return float(stats.f.cdf(lo / ratio, n - 1, n - 1) + stats.f.sf(hi / ratio, n - 1, n - 1))
-
-    return _smallest_n(power_at)
-
-
-# --------------------------------------------------------------------------- the tests
-
-
-def _ci(res: object) -> tuple[float, float]:
-    ci = res.confidence_interval(CONFIDENCE)
+def _ci(res: object, level: float) -> tuple[float, float]:
+    ci = res.confidence_interval(level)
     return float(ci.low), float(ci.high)
 
 
-def compare_means(a: np.ndarray, b: np.ndarray | None, paired: bool) -> Comparison:
-    """``a`` − ``b`` (means): paired t-test when ``paired`` (``a[i]`` pairs with ``b[i]``),
-    Welch otherwise; ``b`` None: one-sample t-test of ``a`` against 0."""
+def compare_means(a: np.ndarray, b: np.ndarray | None, paired: bool, sesoi: float) -> Result:
+    """``a`` − ``b``: paired t (``a[i]`` with ``b[i]``), Welch, or one-sample t when ``b`` is None."""
     a = np.asarray(a, dtype=float)
     if b is None or paired:
         d = a if b is None else a - np.asarray(b, dtype=float)
-        res = stats.ttest_1samp(d, 0.0)
-        sd = d.std(ddof=1)
+        res = sps.ttest_1samp(d, 0.0)
         method = "one-sample t against 0" if b is None else "paired t (by scene and seed)"
         n = f"{len(d)} runs" if b is None else f"{len(d)} pairs"
-        return Comparison(method, n, float(d.mean()), _ci(res), "t", float(res.statistic), float(res.pvalue),
-                          lambda: n_for_t_test(float(d.mean() / sd) if sd > 0 else math.nan, paired=True))
+        sd = float(d.std(ddof=1))
+        return Result(method, n, float(d.mean()), _ci(res, CONFIDENCE), _ci(res, 0.90), "t", float(res.statistic),
+                      float(res.pvalue), stats.tost_paired(d, sesoi), lambda: stats.n_for_t(sesoi, sd, paired=True))
     b = np.asarray(b, dtype=float)
-    res = stats.ttest_ind(a, b, equal_var=False)
+    res = sps.ttest_ind(a, b, equal_var=False)
     pooled = math.sqrt((a.var(ddof=1) + b.var(ddof=1)) / 2)
-    effect = float(a.mean() - b.mean())
-    return Comparison("Welch t", f"{len(a)} vs {len(b)}", effect, _ci(res), "t", float(res.statistic),
-                      float(res.pvalue), lambda: n_for_t_test(effect / pooled if pooled > 0 else math.nan, paired=False))
+    return Result("Welch t", f"{len(a)} vs {len(b)}", float(a.mean() - b.mean()), _ci(res, CONFIDENCE),
+                  _ci(res, 0.90), "t", float(res.statistic), float(res.pvalue), stats.tost_ind(a, b, sesoi),
+                  lambda: stats.n_for_t(sesoi, pooled, paired=False))
 
 
-def _std_diff(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
-    return np.std(x, ddof=1, axis=axis) - np.std(y, ddof=1, axis=axis)
+def _sd_ratio(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):  # a resample without spread: inf/nan, kept
+        return np.std(x, ddof=1, axis=axis) / np.std(y, ddof=1, axis=axis)
 
 
-def compare_variances(a: np.ndarray, b: np.ndarray, seed: int = 0, names: tuple[str, str] = ("a", "b")
-                      ) -> Comparison:
-    """std(``a``) − std(``b``): Brown–Forsythe test (Levene, median centre), percentile
-    bootstrap CI of the std difference (fixed seed: reports are reproducible). ``detail``
-    gives both variances and, when ``a`` varies more, the share of its variance ``b`` lacks
-    (fixed vs free initialisation: the initialisation's share)."""
+def compare_variances(a: np.ndarray, b: np.ndarray, sesoi: float, names: tuple[str, str] = ("a", "b")) -> Result:
+    """std(``a``)/std(``b``): Brown–Forsythe test, percentile bootstrap CIs (fixed seed), and
+    equivalence when the bootstrap 90% CI lies within [1/sesoi, sesoi]."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    res = stats.levene(a, b, center="median")
-    boot = stats.bootstrap((a, b), _std_diff, n_resamples=4000, method="percentile",
-                           confidence_level=CONFIDENCE, rng=np.random.default_rng(seed))  # fmt: skip
+    res = sps.levene(a, b, center="median")
+    boot = sps.bootstrap((a, b), _sd_ratio, n_resamples=BOOT_RESAMPLES, method="percentile", vectorized=True,
+                         confidence_level=CONFIDENCE, rng=np.random.default_rng(BOOT_SEED))
+    dist = boot.bootstrap_distribution
+    ci90 = (float(np.quantile(dist, 0.05)), float(np.quantile(dist, 0.95)))
+    p_tost = float(max((dist <= 1 / sesoi).mean(), (dist >= sesoi).mean()))  # bootstrap TOST on the ratio
     va, vb = a.var(ddof=1), b.var(ddof=1)
-    ratio = va / vb if vb > 0 else math.nan
-    # b nested in a (fixed vs free init): the part of a's variance b does not have
     na, nb = names
-    split = f"var {na} = {va:.3g}, var {nb} = {vb:.3g}" + (
+    detail = f"SD {na} = {math.sqrt(va):.3g}, SD {nb} = {math.sqrt(vb):.3g}" + (
         f"; {1 - vb / va:.0%} of {na}'s variance is not in {nb}" if va > vb else "")
-    return Comparison("Brown–Forsythe (Levene, median)", f"{len(a)} vs {len(b)}", float(_std_diff(a, b)),
-                      (float(boot.confidence_interval.low), float(boot.confidence_interval.high)), "W",
-                      float(res.statistic), float(res.pvalue), lambda: n_for_variance_test(ratio), split)
+    return Result("Brown–Forsythe (Levene, median); SD ratio, bootstrap CI", f"{len(a)} vs {len(b)}",
+                  float(_sd_ratio(a, b)), (float(boot.confidence_interval.low), float(boot.confidence_interval.high)),
+                  ci90, "W", float(res.statistic), float(res.pvalue), p_tost, lambda: stats.n_for_bf(sesoi), detail)
 
 
-def compare_interaction(d1: np.ndarray, d2: np.ndarray) -> Comparison:
-    """Difference of differences: mean(``d1``) − mean(``d2``), Welch t between the per-seed
-    differences of the two scenes."""
-    res = compare_means(d1, d2, paired=False)
-    res.method = "Welch t on per-seed differences (difference of differences)"
-    return res
+# --------------------------------------------------------------------------- selecting runs
 
 
-def weak_correlation(x: np.ndarray, y: np.ndarray, threshold: float) -> Comparison:
-    """Pearson r with its CI; p of the equivalence test |ρ| < ``threshold`` (two one-sided
-    tests on Fisher's z); ``strong`` when the CI lies wholly outside ±threshold."""
-    res = stats.pearsonr(x, y)
-    r, n = float(res.statistic), len(x)
-    lo, hi = _ci(res)
-    z, zt, se = math.atanh(max(min(r, 1 - 1e-12), -1 + 1e-12)), math.atanh(threshold), 1 / math.sqrt(n - 3)
-    p = max(stats.norm.cdf((z - zt) / se), stats.norm.sf((z + zt) / se))
-    gap = zt - abs(z)  # room left inside the band
-    need = math.ceil(3 + ((stats.norm.ppf(1 - ALPHA) + stats.norm.ppf(POWER)) / gap) ** 2) if gap > 0 else math.inf
-    return Comparison(f"Pearson r, equivalence |ρ| < {threshold:g} (TOST, Fisher z)", f"{n} runs", r, (lo, hi),
-                      "r", r, float(p), lambda: float(need), strong=lo > threshold or hi < -threshold)
-
-
-# --------------------------------------------------------------------------- claims on runs
-
-
-def _finished(df: pd.DataFrame, metric: str, scenes: tuple[str, ...]) -> pd.DataFrame:
+def finished(df: pd.DataFrame, metric: str, scenes: tuple[str, ...] = ()) -> pd.DataFrame:
+    """FINISHED runs with ``metric``, on ``scenes`` (all when empty)."""
     if metric not in df.columns:
         return df.iloc[0:0].assign(**{metric: []})
     ok = df[(df.status == "FINISHED") & df[metric].notna()]
     return ok[ok.scene.isin(scenes)] if scenes else ok
 
 
-def _paired(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> pd.DataFrame:
-    """Columns a and b of ``metric`` for every (scene, seed) where both variants finished."""
-    ok = _finished(df, claim.metric, scenes)
-    wide = ok[ok.variant.isin([claim.a, claim.b])].pivot_table(
-        index=["scene", "seed"], columns="variant", values=claim.metric, aggfunc="first")
-    if claim.a not in wide or claim.b not in wide:
-        return pd.DataFrame(columns=["a", "b"])
-    return wide[[claim.a, claim.b]].dropna().set_axis(["a", "b"], axis=1)
+def wide(df: pd.DataFrame, metric: str, variants: list[str], scenes: tuple[str, ...] = ()) -> pd.DataFrame:
+    """``metric`` per (scene, seed) with one column per variant, rows where all finished."""
+    ok = finished(df, metric, scenes)
+    table = ok[ok.variant.isin(variants)].pivot_table(index=["scene", "seed"], columns="variant", values=metric,
+                                                      aggfunc="first")
+    if not set(variants) <= set(table.columns):
+        return pd.DataFrame(columns=variants)
+    return table[variants].dropna()
 
 
-def _missing(df: pd.DataFrame, claim: ClaimSpec) -> str:
+def missing(df: pd.DataFrame, claim: ClaimSpec) -> str:
     """Why a claim cannot be tested on ``df`` ("" when it can be tried)."""
-    if claim.metric not in df.columns or (claim.versus and claim.versus not in df.columns):
-        return f"no run logged `{claim.versus if claim.metric in df.columns else claim.metric}`"
-    for v in (claim.a, claim.b):
+    for m in (claim.metric, claim.versus):
+        if m and m not in df.columns:
+            return f"no run logged `{m}`"
+    for v in [claim.a, claim.b, *(v for w in claim.contrasts for v, _ in w)]:
         if v and v not in set(df.variant):
             return f"variant `{v}` not in these runs"
     for s in claim.scenes:
@@ -232,92 +146,112 @@ def _missing(df: pd.DataFrame, claim: ClaimSpec) -> str:
     return ""
 
 
-def compare(df: pd.DataFrame, claim: ClaimSpec) -> Comparison:
-    """The claim's comparison on the FINISHED runs of ``df``; ValueError when too few runs."""
-    if claim.test == "correlation":
-        ok = _finished(df, claim.metric, claim.scenes)
-        ok = ok[ok[claim.versus].notna()] if claim.versus in ok else ok.iloc[0:0]
-        if claim.a:
-            ok = ok[ok.variant.isin([claim.a, claim.b] if claim.b else [claim.a])]
-        if len(ok) < 4:
-            raise ValueError(f"{len(ok)} runs with both metrics (need 4)")
-        centred = ok[[claim.metric, claim.versus]] - ok.groupby("scene")[[claim.metric, claim.versus]].transform("mean")
-        return weak_correlation(centred[claim.metric].to_numpy(), centred[claim.versus].to_numpy(),
-                                     claim.threshold)  # fmt: skip
+def not_exercised(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> str:
+    """Why the claim's mechanism is absent on these runs ("" when it is present)."""
+    if claim.requires is None:
+        return ""
+    metric, low = claim.requires
+    variants = [v for v in (claim.a, claim.b) if v] or list(dict.fromkeys(df.variant))
+    ok = finished(df, metric, scenes)
+    values = ok.loc[ok.variant.isin(variants), metric]
+    if values.empty:
+        return f"no run logged `{metric}`, which shows whether the mechanism is present"
+    median = float(values.median())
+    return "" if median >= low else f"median `{metric}` {median:.4g} < {low:g}: the mechanism is absent on this scene"
+
+
+# --------------------------------------------------------------------------- one hypothesis
+
+
+def paired_differences(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> pd.Series:
+    """a − b per (scene, seed) where both finished (index: scene, seed)."""
+    w = wide(df, claim.metric, [claim.a, claim.b], scenes)
+    return (w[claim.a] - w[claim.b]) if len(w) else pd.Series(dtype=float)
+
+
+def _contrast(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
+    results = []
+    for weights in claim.contrasts:
+        w = wide(df, claim.metric, [v for v, _ in weights], scenes)
+        if len(w) < 2:
+            raise ValueError(f"{len(w)} (scene, seed) cells where every variant of a contrast finished (need 2)")
+        values = sum(float(k) * w[v] for v, k in weights).to_numpy(dtype=float)
+        res = compare_means(values, None, True, claim.sesoi)
+        res.detail = " ".join(f"{k:+g}·{v}" for v, k in weights)
+        results.append(res)
+    worst = max(results, key=lambda r: r.p)
+    return Result(f"contrasts, one-sample t each; all must hold (intersection–union, p = max of {len(results)})",
+                  worst.n, worst.effect, worst.ci, worst.ci90, "t", worst.statistic, worst.p,
+                  max(r.p_tost for r in results), worst.needed,
+                  "weakest contrast: " + worst.detail + "; all: " + "; ".join(
+                      f"{r.detail} = {r.effect:+.3f}" for r in results))
+
+
+def _decoupled(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
+    variants = list(dict.fromkeys(df.variant))
+    tried = []
+    for scene in scenes or tuple(dict.fromkeys(df.scene)):
+        for va, vb in itertools.combinations(variants, 2):
+            x = wide(df, claim.metric, [va, vb], (scene,))
+            y = wide(df, claim.versus, [va, vb], (scene,)).reindex(x.index).dropna()
+            if len(y) < 3:
+                continue
+            x = x.loc[y.index]
+            p_equal = stats.tost_paired((x[va] - x[vb]).to_numpy(float), claim.sesoi)
+            dy = (y[va] - y[vb]).to_numpy(float)
+            differs = sps.ttest_1samp(dy, 0.0)
+            tried.append((max(p_equal, float(differs.pvalue)), scene, va, vb, dy, differs, p_equal))
+    if not tried:
+        raise ValueError("no scene with 3 seeds of two variants that logged both metrics")
+    p, scene, va, vb, dy, res, p_equal = min(tried, key=lambda t: t[0])
+    return Result(f"existential: per scene and variant pair, TOST of {claim.metric} within ±{claim.sesoi:g} and"
+                  f" paired t of {claim.versus}; p = max of the two, Bonferroni over {len(tried)} pairs",
+                  f"{len(dy)} pairs", float(dy.mean()), _ci(res, CONFIDENCE), _ci(res, 0.90), "t",
+                  float(res.statistic), min(1.0, p * len(tried)), math.nan, lambda: math.nan,
+                  f"best pair {va} vs {vb} on {scene}: {claim.metric} equivalent (TOST p = {p_equal:.2g}),"
+                  f" {claim.versus} differs by {dy.mean():+.3g} (p = {res.pvalue:.2g})")
+
+
+def compare(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
+    """The claim's test on the FINISHED runs of ``df`` on ``scenes``; ValueError when too few runs."""
+    if claim.test == "contrast":
+        return _contrast(df, claim, scenes)
+    if claim.test == "decoupled":
+        return _decoupled(df, claim, scenes)
     if claim.test == "interaction":
-        diffs = [_paired(df, claim, (s,)) for s in claim.scenes]
-        d1, d2 = ((w.a - w.b).to_numpy(dtype=float) for w in diffs)
+        d1, d2 = (paired_differences(df, claim, (s,)).to_numpy(dtype=float) for s in claim.scenes)
         if min(len(d1), len(d2)) < 2:
             raise ValueError(f"{len(d1)} and {len(d2)} seed pairs on the two scenes (need 2 each)")
-        return compare_interaction(d1, d2)
-    ok = _finished(df, claim.metric, claim.scenes)
+        res = compare_means(d1, d2, paired=False, sesoi=claim.sesoi)
+        res.method = "Welch t on per-seed differences (difference of differences)"
+        return res
     if claim.test == "mean" and claim.b and claim.pair == "seed":
-        w = _paired(df, claim, claim.scenes)
-        if len(w) < 2:
-            raise ValueError(f"{len(w)} (scene, seed) pairs where both variants finished (need 2)")
-        return compare_means(w.a.to_numpy(dtype=float), w.b.to_numpy(dtype=float), paired=True)
-    if claim.test == "variance":
+        d = paired_differences(df, claim, scenes)
+        if len(d) < 2:
+            raise ValueError(f"{len(d)} (scene, seed) pairs where both variants finished (need 2)")
+        res = compare_means(d.to_numpy(dtype=float), None, True, claim.sesoi)
+        res.method, res.n = "paired t (by scene and seed)", f"{len(d)} pairs"
+        return res
+    ok = finished(df, claim.metric, scenes)
+    if claim.test == "variance":  # centred per cell: pooling scenes adds no between-scene spread
         ok = ok.assign(**{claim.metric: ok[claim.metric] - ok.groupby(["variant", "scene"])[claim.metric].transform("mean")})
     a = ok.loc[ok.variant == claim.a, claim.metric].to_numpy(dtype=float)
     b = ok.loc[ok.variant == claim.b, claim.metric].to_numpy(dtype=float) if claim.b else None
     if len(a) < 2 or (b is not None and len(b) < 2):
         raise ValueError(f"{len(a)} vs {0 if b is None else len(b)} finished runs (need 2 each)")
     if claim.test == "variance":
-        return compare_variances(a, b, names=(claim.a, claim.b))
-    return compare_means(a, b, paired=False)
+        return compare_variances(a, b, claim.sesoi, names=(claim.a, claim.b))
+    return compare_means(a, b, paired=False, sesoi=claim.sesoi)
 
 
-def comparison_text(claim: ClaimSpec) -> str:
-    """What is compared, in words: ``cc − baseline (studio)``."""
-    where = f" ({', '.join(claim.scenes)})" if claim.scenes and claim.test != "interaction" else ""
-    if claim.test == "correlation":
-        return f"r({claim.metric}, {claim.versus}) within scene{where}"
-    if claim.test == "variance":
-        return f"std {claim.a} − std {claim.b}{where}"
-    if claim.test == "interaction":
-        return f"({claim.a} − {claim.b}) on {claim.scenes[0]} − on {claim.scenes[1]}"
-    return f"{claim.a} − {claim.b or '0'}{where}"
-
-
-def verdict(p_holm: float, effect: float, expect: str, strong: bool = False, alpha: float = ALPHA) -> str:
-    """reproduced / contradicted / inconclusive from the Holm p and the effect's sign."""
-    if expect == "weak":
-        return REPRODUCED if p_holm < alpha else CONTRADICTED if strong else INCONCLUSIVE
-    if not p_holm < alpha or not np.isfinite(effect) or effect == 0:
-        return INCONCLUSIVE
-    return REPRODUCED if (effect > 0) == (expect == "higher") else CONTRADICTED
-
-
-def evaluate(df: pd.DataFrame, claims: tuple[ClaimSpec, ...] | list[ClaimSpec], alpha: float = ALPHA
-             ) -> pd.DataFrame:
-    """One row per claim (``COLUMNS``): effect, 95% CI, statistic, p, Holm p over the claims
-    tested, verdict and the runs per arm needed when inconclusive."""
-    rows, results = [], []
-    for c in claims:
-        row = {"id": c.id, "statement": c.statement, "paper_number": c.paper_number, "metric": c.metric,
-               "test": c.test, "comparison": comparison_text(c), "method": "", "n": "", "effect": math.nan,
-               "ci_low": math.nan, "ci_high": math.nan, "stat_name": "", "statistic": math.nan, "p": math.nan,
-               "p_holm": math.nan, "verdict": NOT_TESTED, "n_needed": math.nan, "note": _missing(df, c), "detail": ""}
-        res = None
-        if not row["note"]:
-            try:
-                res = compare(df, c)
-            except ValueError as err:
-                row["note"] = str(err)
-        if res is not None:
-            row.update(method=res.method, n=res.n, effect=res.effect, ci_low=res.ci[0], ci_high=res.ci[1],
-                       stat_name=res.stat_name, statistic=res.statistic, p=res.p, detail=res.detail)
-            if not np.isfinite(res.p):
-                row["note"] = "no spread in the data: the test is undefined"
-        rows.append(row)
-        results.append(res)
-    out = pd.DataFrame(rows, columns=COLUMNS)
-    out["p_holm"] = holm(out["p"].to_numpy(dtype=float)) if len(out) else []
-    for i, (c, res) in enumerate(zip(claims, results)):
-        if res is None or not np.isfinite(res.p):
-            continue
-        v = verdict(float(out.at[i, "p_holm"]), res.effect, c.expect, res.strong, alpha)
-        out.at[i, "verdict"] = v
-        if v == INCONCLUSIVE:
-            out.at[i, "n_needed"] = res.needed()
-    return out
+def scene_split(df: pd.DataFrame, claim: ClaimSpec) -> tuple[float, dict[str, float]]:
+    """(heterogeneity p, per-scene mean effect) of a paired claim pooled over several scenes."""
+    if claim.test not in ("mean", "contrast") or not claim.b or claim.pair != "seed" or len(claim.scenes) == 1:
+        return math.nan, {}
+    d = paired_differences(df, claim, claim.scenes)
+    if d.empty:
+        return math.nan, {}
+    scenes = d.index.get_level_values("scene")
+    order = [s for s in (claim.scenes or tuple(dict.fromkeys(scenes))) if s in set(scenes)]
+    by_scene = {s: d[scenes == s].to_numpy(dtype=float) for s in order}
+    return stats.heterogeneity(list(by_scene.values())), {s: float(v.mean()) for s, v in by_scene.items()}

@@ -1,9 +1,13 @@
 """``reports/index.md`` (``study index``): the page a reader opens first.
 
-One row per claim of every study that has runs in the store (the paper's claim and number,
-our effect ± 95% CI with n and Holm p, the verdict, a link to the study's report), then the
-speed–accuracy and stability charts when their reports exist. The page carries no
-timestamp, so the same store gives the same page.
+It opens with the forest plot (every claim's effect in units of its smallest effect of
+interest, the paper's own effect marked), names the families its verdicts are corrected over
+(``analysis.verdicts``: one family per claim group over every study, not per study), tallies
+the verdicts per family, and has one row per hypothesis: the paper's numbers and the paper's
+own evidence (is its difference distinguishable from its own spread?), the SESOI, our effect
+with its 95% CI, n and family-corrected p, and the verdict, linked to the study's report.
+Then the speed–accuracy and stability charts, stale reports and studies without runs. The
+page carries no timestamp, so the same store gives the same page.
 """
 
 from __future__ import annotations
@@ -15,19 +19,22 @@ from typing import Callable
 
 import pandas as pd
 
-from harness.analysis import claims as claims_mod
+from harness.analysis import verdicts as V
 from harness.report import USER_REPORTS
-from harness.report.claims import VERDICT_MARK, effect_text, needed_text
+from harness.report.claims import VERDICT_MARK, VERDICT_RULES, effect_text, sesoi_text, verdict_text
 from harness.report.fmt import p_text, text
+from harness.report.forest import forest_plot
 from harness.report.results import collect
 from harness.spec.files import list_studies
 from harness.spec.metrics import add_differences
+from harness.spec.study import CLAIM_GROUPS
 from harness.tracking.provenance import trainer_fingerprint
 
 CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per scene (PSNR vs train time and"
                                                     " #Gaussians, Pareto fronts)"),
           ("stability", "ladders.png", "Stability ladders: PSNR and failure rate (crash, divergence, collapse) per rung"),
           ("stability", "stability.png", "Stability: PSNR, spread and failure rate per difficulty cell"))
+FOREST = "forest.png"
 
 
 @dataclass
@@ -36,7 +43,7 @@ class StudyClaims:
 
     study: str
     question: str
-    frame: pd.DataFrame  # claims.evaluate
+    frame: pd.DataFrame  # verdicts.evaluate, then decide_all
     report: str  # link to the study's report, relative to the index page
     n_finished: int
     code: str = ""  # git sha(s) of the runs
@@ -49,33 +56,47 @@ def stale_studies(entries: list[StudyClaims], current: str) -> list[tuple[str, s
             if set(e.fingerprints) != {current}]
 
 
+def _row(r: pd.Series, study: str, report: str) -> str:
+    ours = "—" if math.isnan(r.effect) else f"{effect_text(r)} ({r.n}, p = {p_text(r.p_adj)})"
+    evidence = r.paper_evidence or ("no numbers" if not r.paper_numbers else "—")
+    return (f"| {study} | **{r.id}**: {r.statement} | {text(r.paper_numbers)} | {evidence} | {sesoi_text(r)} |"
+            f" {ours} | {verdict_text(r)} | [{study}]({report}) |")
+
+
 def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], missing: list[str],
-                   current: str = "") -> str:
-    """The page: a claims table over every study, the charts, the studies whose runs another
-    trainer made (stale), and the studies without runs."""
+                   current: str = "", forest: str = "") -> str:
+    """The page (module docstring); ``entries`` carry frames already decided over all studies."""
+    frames = [e.frame.assign(study=e.study) for e in entries if not e.frame.empty]
+    allf = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=[*V.COLUMNS, "study"])
     lines = ["# The answers: every claim of the paper on our runs", "",
-             "One row per claim of every study with runs in the store. Effect = the compared quantity"
-             " (see the study's report for the exact test) with its 95% CI; n = runs or seed pairs;"
-             " p Holm-corrected within the study. Regenerate with `make reports` (or `study index`).", "",
-             "| Study | Claim | Paper | Ours: effect [95% CI] (n, p) | Verdict | Report |",
-             "|---|---|---|---|---|---|"]
-    for e in entries:
-        for _, r in e.frame.iterrows():
-            ours = "—" if math.isnan(r.effect) else f"{effect_text(r)} ({r.n}, p = {p_text(r.p_holm)})"
-            note = f" ({r.note})" if r.note else ""
-            need = needed_text(r)
-            if need.startswith("none"):
-                need = f"; no n gives 80% power: {need[6:-1]}"
-            elif need:
-                need = f"; ≈{need}{'' if need.endswith('runs') else ' runs/arm'} for 80% power"
-            lines.append(f"| {e.study} | {r.statement} | {text(r.paper_number)} | {ours} |"
-                         f" {VERDICT_MARK[r.verdict]}{note}{need} | [{e.study}]({e.report}) |")
-        if e.frame.empty:
-            lines.append(f"| {e.study} | (no claims stated) | — | — | — | [{e.study}]({e.report}) |")
-    lines.append("")
-    counts = pd.Series([v for e in entries for v in e.frame.verdict]).value_counts()
-    if len(counts):
-        lines += ["Verdicts: " + ", ".join(f"{int(counts.get(v, 0))} {v}" for v in VERDICT_MARK) + ".", ""]
+             "Regenerate with `make reports` (or `study index --out reports`). Each claim names its smallest"
+             " effect of interest (SESOI), fixed in its study file before the runs; the verdicts are corrected"
+             " over the families below, across every study.", ""]
+    if forest:
+        lines += [f"![Every claim's effect in units of its smallest effect of interest]({forest})", "",
+                  "Effects and 95% CIs divided by each claim's SESOI (grey: ±1, effects too small to matter);"
+                  " diamonds: the paper's own effect per dataset; colour: the verdict.", ""]
+    lines += ["## Families", ""]
+    for group, what in CLAIM_GROUPS.items():
+        sub = allf[allf.group == group]
+        fam = next((f for f in sub.family if f), f"{group}: nothing tested")
+        counts = sub.verdict.value_counts()
+        tally = ", ".join(f"{int(counts.get(v, 0))} {v}" for v in VERDICT_MARK if counts.get(v, 0))
+        lines.append(f"- **{group}** ({what}): {fam} hypotheses, separately for the difference and the"
+                     f" equivalence tests. {tally or 'no claims'}.")
+    lines += ["", VERDICT_RULES, ""]
+    for group, what in CLAIM_GROUPS.items():
+        rows = [(e, r) for e in entries for _, r in e.frame.iterrows() if r.group == group]
+        if not rows:
+            continue
+        lines += [f"## {what[0].upper() + what[1:]} ({group})", "",
+                  "| Study | Claim | Paper | Paper's own evidence | SESOI | Ours: effect [95% CI] (n, p) | Verdict |"
+                  " Report |", "|---|---|---|---|---:|---|---|---|"]
+        lines += [_row(r, e.study, e.report) for e, r in rows]
+        lines.append("")
+    quiet = [e for e in entries if e.frame.empty]
+    if quiet:
+        lines += ["Studies with runs but no claims: " + ", ".join(f"[{e.study}]({e.report})" for e in quiet) + ".", ""]
     for caption, path in charts:
         lines += [f"## {caption}", "", f"![{caption}]({path})", ""]
     stale = stale_studies(entries, current) if current else []
@@ -94,13 +115,25 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     return "\n".join(lines)
 
 
+def decide_all(entries: list[StudyClaims]) -> list[StudyClaims]:
+    """Every study's claims corrected together, one family per claim group."""
+    frames = [e.frame.assign(study=e.study) for e in entries if not e.frame.empty]
+    if not frames:
+        return entries
+    decided = V.decide(pd.concat(frames, ignore_index=True), label=" (every study)")
+    for e in entries:
+        if not e.frame.empty:
+            e.frame = decided[decided.study == e.study].drop(columns="study").reset_index(drop=True)
+    return entries
+
+
 def collect_study_claims(name: str, studies_dir: Path | None = None) -> StudyClaims | None:
     """The study's claims evaluated on its latest invocation's runs; None when none finished."""
     data = collect(name, None, studies_dir)
     n_done = int((data.df.status == "FINISHED").sum())
     if n_done == 0:
         return None
-    frame = claims_mod.evaluate(add_differences(data.df), data.study.claims)
+    frame = V.evaluate(add_differences(data.df), data.study.claims)
     report = (Path(name) / "index.md").as_posix()
     return StudyClaims(name, data.study.question, frame, report, n_done, ", ".join(data.code_versions()),
                        tuple(data.trainer_fingerprints()))
@@ -115,11 +148,17 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
     for name in list_studies(studies_dir):
         entry = collect_study_claims(name, studies_dir)
         (entries.append(entry) if entry is not None else missing.append(name))
+    entries = decide_all(entries)
     with_runs = {e.study for e in entries}
     charts = [(caption, f"{study}/{png}") for study, png, caption in CHARTS
               if study in with_runs and (root / study / png).is_file()]
+    frames = [e.frame.assign(study=e.study) for e in entries if not e.frame.empty]
+    allf = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    if len(allf):
+        allf.to_csv(root / "claims.csv", index=False)
+    forest = forest_plot(allf, root / FOREST) if len(allf) else None
     path = root / "index.md"
-    path.write_text(index_markdown(entries, charts, missing, trainer_fingerprint()))
+    path.write_text(index_markdown(entries, charts, missing, trainer_fingerprint(), FOREST if forest else ""))
     n = sum(len(e.frame) for e in entries)
     echo(f"index: {n} claims over {len(entries)} studies with runs ({len(missing)} without) written to {path}")
     return path

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.analysis import aggregate, claims, ladders, speed_accuracy, variance
+from harness.analysis import aggregate, ladders, speed_accuracy, variance, verdicts
 from harness.report import claims as claims_report, ladders as ladders_report, plots, tables
 from harness.report.fmt import fixed
 from harness.report.results import ReportData
@@ -149,15 +149,17 @@ def tables_section(data: ReportData) -> TablesSection:
 
 
 def claims_section(data: ReportData, out: Path) -> Section | None:
-    """The study's claims tested on its runs (``claims.csv``, a scatter per correlation claim)."""
+    """The study's claims tested on its runs, verdicts within the study's own families
+    (``claims.csv``; a scatter per existential claim)."""
     if not data.study.claims:
         return None
-    frame = claims.evaluate(registry.add_differences(data.df), data.study.claims)
+    frame = verdicts.decide(verdicts.evaluate(registry.add_differences(data.df), data.study.claims),
+                            label=" (this study)")
     frame.to_csv(out / "claims.csv", index=False)
     md = claims_report.claims_markdown(frame)
-    for c, r in zip(data.study.claims, frame.effect):
-        if c.test == "correlation":  # secret 2: the runs behind "clean RGB does not imply clean motion"
-            p = claims_report.correlation_plot(data.df, c, r, out / f"claim_{c.id}.png")
+    for c in data.study.claims:
+        if c.test == "decoupled":  # secret 2: the runs behind "clean RGB does not imply clean motion"
+            p = claims_report.decoupled_plot(data.df, c, out / f"claim_{c.id}.png")
             md += f"\n\n![{c.id}: {c.versus} against {c.metric}, every run]({p.name})"
     return Section("Claims", md, claims_report.claims_latex(frame, data.study.name))
 

@@ -24,6 +24,7 @@ from ftgspp.errors import InputError
 from harness.spec import study_file
 from harness.spec.metrics import claimable
 from harness.spec.study import (
+    CLAIM_GROUPS,
     CLAIM_TESTS,
     NAME_PATTERN,
     PLOTS,
@@ -33,13 +34,15 @@ from harness.spec.study import (
     TABLE_LAYOUTS,
     TINY_SYNTH,
     ClaimSpec,
+    PaperClaim,
+    PaperRow,
     ProfileSpec,
     StudyScene,
     StudySpec,
     TableSpec,
     VarianceSpec,
 )
-from harness.spec.study_file import ClaimFile, LadderFile, ProfileFile, SceneFile, VarianceFile
+from harness.spec.study_file import ClaimFile, LadderFile, PaperFile, ProfileFile, SceneFile, VarianceFile
 
 STUDIES_DIR = Path(os.environ.get("FTGSPP_STUDIES", Path(__file__).resolve().parents[2] / "studies"))
 SCENE_SETS_FILE = "_scene_sets.yaml"
@@ -234,6 +237,18 @@ def _variance(raw: VarianceFile | None, where: str, variants: set[str]) -> Varia
     return VarianceSpec(raw.metric, raw.optimisation, raw.initialisation, tuple(raw.hardware))
 
 
+def _paper(raw: PaperFile | None, where: str) -> PaperClaim | None:
+    if raw is None:
+        return None
+    rows = []
+    for r in raw.rows:
+        require(r.n is None or r.n >= 2, f"{where}.rows.{r.dataset}.n", "needs at least 2 runs")
+        require((r.a_std is None) == (r.b_std is None) or r.b is None, f"{where}.rows.{r.dataset}",
+                "give both a_std and b_std, or neither")
+        rows.append(PaperRow(r.dataset, r.a, r.b, r.a_std, r.b_std, r.n, r.run_sd, r.run_sd_n, r.scene, r.note))
+    return PaperClaim(" ".join(raw.statement.split()), raw.source, tuple(rows))
+
+
 def _claims(raw: list[ClaimFile], where: str, variants: set[str]) -> tuple[ClaimSpec, ...]:
     """Check a study's ``claims:`` (variants: those of any profile)."""
     out: list[ClaimSpec] = []
@@ -244,23 +259,34 @@ def _claims(raw: list[ClaimFile], where: str, variants: set[str]) -> tuple[Claim
         require(c.test in CLAIM_TESTS, f"{at}.test", f"unknown comparison '{c.test}' (use {', '.join(CLAIM_TESTS)})")
         require(c.expect in CLAIM_TESTS[c.test], f"{at}.expect",
                 f"'{c.expect}' is not an expectation of a {c.test} test (use {', '.join(CLAIM_TESTS[c.test])})")
+        require(c.group in CLAIM_GROUPS, f"{at}.group", f"unknown group '{c.group}' (use {', '.join(CLAIM_GROUPS)})")
+        require(c.sesoi > 0, f"{at}.sesoi", "the smallest effect of interest must be positive")
         for key, metric in (("metric", c.metric), ("versus", c.versus)):
             require(metric in claimable() or (key == "versus" and not metric), f"{at}.{key}",
                     f"unknown metric '{metric}' (use {', '.join(claimable())})")
-        for key, v in (("a", c.a), ("b", c.b)):
-            require(not v or v in variants, f"{at}.{key}", f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
+        used = [c.a, c.b, *(v for w in c.contrasts for v in w)]
+        for v in used:
+            require(not v or v in variants, at, f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
         require(c.pair in ("seed", "none"), f"{at}.pair", "must be 'seed' or 'none'")
-        if c.test == "correlation":
-            require(bool(c.versus), at, "a correlation claim needs 'versus' (the second metric)")
+        if c.test == "decoupled":
+            require(bool(c.versus), at, "a decoupled claim needs 'versus' (the metric that differs)")
+        elif c.test == "contrast":
+            require(bool(c.contrasts) and all(isinstance(k, (int, float)) for w in c.contrasts for k in w.values())
+                    and all(abs(sum(w.values())) < 1e-9 for w in c.contrasts), f"{at}.contrasts",
+                    "needs maps of variant -> number weights that each sum to 0")
         else:
             require(bool(c.a), f"{at}.a", f"a {c.test} claim needs variant 'a'")
             require(bool(c.b) or c.test == "mean", f"{at}.b", f"a {c.test} claim needs variant 'b'")
         if c.test == "interaction":
             require(len(c.scenes) == 2, f"{at}.scenes", "an interaction needs exactly two scenes")
-        require(0 < c.threshold < 1, f"{at}.threshold", "must be in (0, 1)")
+        requires = None
+        if c.requires is not None:
+            require(c.requires.metric in claimable(), f"{at}.requires.metric", f"unknown metric '{c.requires.metric}'")
+            requires = (c.requires.metric, float(c.requires.min))
         out.append(ClaimSpec(
             id=c.id, statement=" ".join(c.claim.split()), metric=c.metric, test=c.test, expect=c.expect, a=c.a,
-            b=c.b, scenes=tuple(c.scenes), pair=c.pair, versus=c.versus, threshold=float(c.threshold),
-            paper_number=c.paper_number,
+            b=c.b, scenes=tuple(c.scenes), pair=c.pair, versus=c.versus, sesoi=float(c.sesoi),
+            sesoi_source=" ".join(c.sesoi_source.split()), group=c.group, paper=_paper(c.paper, f"{at}.paper"),
+            contrasts=tuple(tuple((v, float(k)) for v, k in w.items()) for w in c.contrasts), requires=requires,
         ))
     return tuple(out)

@@ -51,8 +51,11 @@ TABLE_LAYOUTS = ("variants_x_scenes", "metrics_x_scenes", "variants_x_metrics")
 PLOTS = ("strip", "speed_accuracy", "stability")
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 # claims: test kinds, the expectations each allows, and the metrics a claim may name
-CLAIM_TESTS = {"mean": ("higher", "lower"), "variance": ("higher", "lower"),
-               "interaction": ("higher", "lower"), "correlation": ("weak",)}
+DIRECTIONS = ("higher", "lower", "not_higher", "not_lower")
+CLAIM_TESTS = {"mean": DIRECTIONS, "variance": DIRECTIONS, "interaction": DIRECTIONS, "contrast": ("higher", "lower"),
+               "decoupled": ("exists",)}
+CLAIM_GROUPS = {"paper": "the paper's method claims", "extension": "this project's own extensions",
+                "convention": "metric conventions"}
 
 
 @dataclass(frozen=True)
@@ -113,16 +116,62 @@ class TableSpec:
 
 
 @dataclass(frozen=True)
+class PaperRow:
+    """What the paper reports for one dataset: the compared values, their spread and runs.
+
+    ``a`` and ``b`` are the paper's values of the claim's two sides (``b`` None: ``a`` is
+    the effect itself); ``a_std``/``b_std`` with ``n`` runs per arm where the paper gives a
+    spread. Where it gives none, ``run_sd`` is the paper's own run-to-run SD on that dataset
+    (``run_sd_n`` runs; e.g. from its colour-correction stability table), used for both arms.
+    ``scene``: our synthetic scene that stands in for the dataset.
+    """
+
+    dataset: str
+    a: float | None = None
+    b: float | None = None
+    a_std: float | None = None
+    b_std: float | None = None
+    n: int | None = None
+    run_sd: float | None = None
+    run_sd_n: int | None = None
+    scene: str = ""
+    note: str = ""
+
+    @property
+    def effect(self) -> float | None:
+        """The paper's effect a − b (or a), None when it gives no number."""
+        if self.a is None:
+            return None
+        return self.a - (self.b or 0.0)
+
+
+@dataclass(frozen=True)
+class PaperClaim:
+    """The paper's statement (paraphrased), where it makes it, and its numbers per dataset."""
+
+    statement: str
+    source: str
+    rows: tuple[PaperRow, ...] = ()
+
+
+@dataclass(frozen=True)
 class ClaimSpec:
-    """One statement of the paper, as a test on the study's runs (``harness.claims``).
+    """One statement, as a test on the study's runs (``analysis.claims``).
 
     ``test``: ``mean`` (variant ``a`` against ``b``, or against zero when ``b`` is empty),
-    ``variance`` (spread of ``a`` against ``b``), ``interaction`` (the ``a`` − ``b`` difference
-    on ``scenes[0]`` against the one on ``scenes[1]``) or ``correlation`` (``metric`` against
-    ``versus`` over every run: ``weak`` means |r| < ``threshold``). ``expect`` is the
-    direction of the first quantity relative to the second (``higher`` / ``lower``).
-    ``scenes``: the scenes pooled (empty: every scene with runs). ``pair``: ``seed`` pairs
-    runs of ``a`` and ``b`` that share (scene, seed); ``none`` compares them unpaired (Welch).
+    ``variance`` (spread of ``a`` against ``b``), ``interaction`` (the ``a`` − ``b``
+    difference on ``scenes[0]`` against the one on ``scenes[1]``), ``contrast`` (every
+    weighted sum of variants in ``contrasts`` per (scene, seed); all must hold: "CC gives the
+    largest gain") or ``decoupled`` (on some scene, two variants are equivalent in ``metric``
+    within ±``sesoi`` yet differ in ``versus``: "clean RGB does not imply clean motion").
+    ``expect``: ``higher`` / ``lower`` (a relative to b), ``not_higher`` / ``not_lower``
+    (equivalent counts as reproduced), ``exists`` (decoupled).
+    ``sesoi``: the smallest effect of interest in the effect's units, fixed in the study file
+    before the runs (``sesoi_source`` says where it comes from); ``group`` names the family
+    the claim is corrected in (``paper``: the paper's method claims; ``extension``: this
+    project's own; ``convention``: metric conventions). ``requires``: a metric whose median
+    over the claim's runs must reach a value for the claim's mechanism to be present on the
+    scene (else "not exercised").
     """
 
     id: str
@@ -135,8 +184,12 @@ class ClaimSpec:
     scenes: tuple[str, ...] = ()
     pair: str = "seed"
     versus: str = ""
-    threshold: float = 0.5
-    paper_number: str | None = None
+    sesoi: float = 0.1
+    sesoi_source: str = ""
+    group: str = "paper"
+    paper: PaperClaim | None = None
+    contrasts: tuple[tuple[tuple[str, float], ...], ...] = ()
+    requires: tuple[str, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -71,21 +71,54 @@ class TableFile:
 
 
 @dataclass
+class PaperRowFile:
+    """The paper's numbers on one dataset (``spec.study.PaperRow``)."""
+
+    dataset: str = MISSING
+    a: Optional[float] = None
+    b: Optional[float] = None
+    a_std: Optional[float] = None
+    b_std: Optional[float] = None
+    n: Optional[int] = None
+    run_sd: Optional[float] = None
+    run_sd_n: Optional[int] = None
+    scene: str = ""
+    note: str = ""
+
+
+@dataclass
+class PaperFile:
+    statement: str = MISSING
+    source: str = MISSING
+    rows: List[PaperRowFile] = field(default_factory=list)
+
+
+@dataclass
+class RequiresFile:
+    metric: str = MISSING
+    min: float = MISSING
+
+
+@dataclass
 class ClaimFile:
-    """One statement of the paper as a test on the study's runs (``spec.study.ClaimSpec``)."""
+    """One claim as a test on the study's runs (``spec.study.ClaimSpec``)."""
 
     id: str = MISSING
     claim: str = MISSING
     metric: str = MISSING
     test: str = MISSING
     expect: str = MISSING
+    sesoi: float = MISSING
+    sesoi_source: str = MISSING
+    group: str = "paper"
     a: str = ""
     b: str = ""
     scenes: List[str] = field(default_factory=list)
     pair: str = "seed"
     versus: str = ""
-    threshold: float = 0.5
-    paper_number: Optional[str] = None
+    paper: Optional[PaperFile] = None
+    contrasts: List[Dict[str, Any]] = field(default_factory=list)  # variant -> weight (numbers: spec.files)
+    requires: Optional[RequiresFile] = None
 
 
 @dataclass
@@ -144,15 +177,17 @@ def _unknown_key(raw: Any, cls: type, path: str = "") -> tuple[str, str, list[st
             return path, str(key), [f.name for f in dataclasses.fields(cls)]
         inner = [a for a in typing.get_args(hints[key]) if dataclasses.is_dataclass(a)] or [hints[key]]
         sub, origin = inner[-1], typing.get_origin(hints[key])
+        if not dataclasses.is_dataclass(sub):
+            continue
         if origin in (list, List) and isinstance(value, list):
             for i, item in enumerate(value):
                 if found := _unknown_key(item, sub, f"{path}{key}[{i}]."):
                     return found
-        elif origin in (dict, Dict) and isinstance(value, dict) and dataclasses.is_dataclass(sub):
+        elif origin in (dict, Dict) and isinstance(value, dict):
             for name, item in value.items():
                 if found := _unknown_key(item, sub, f"{path}{key}.{name}."):
                     return found
-        elif dataclasses.is_dataclass(sub) and (found := _unknown_key(value, sub, f"{path}{key}.")):
+        elif origin is None and (found := _unknown_key(value, sub, f"{path}{key}.")):
             return found
     return None
 

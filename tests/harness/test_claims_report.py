@@ -11,10 +11,10 @@ import pytest
 import yaml
 from fakes import fake_generate, fake_train
 
-from harness.analysis import claims as C
+from harness.analysis import verdicts as V
 from harness.report.claims import claims_latex, claims_markdown
-from harness.report.index import StudyClaims, index_markdown
-from harness.spec.study import ClaimSpec
+from harness.report.index import StudyClaims, decide_all, index_markdown
+from harness.spec.study import ClaimSpec, PaperClaim, PaperRow
 
 MINI = {
     "name": "mini",
@@ -24,17 +24,19 @@ MINI = {
     "metrics": ["psnr"],
     "plots": [],
     "claims": [
-        {"id": "cc_mean", "claim": "CC raises PSNR.", "paper_number": "+0.3 dB", "metric": "psnr", "test": "mean",
-         "a": "cc", "b": "baseline", "expect": "higher", "pair": "none"},
+        {"id": "cc_mean", "claim": "CC raises PSNR.", "metric": "psnr", "test": "mean", "a": "cc", "b": "baseline",
+         "expect": "higher", "pair": "none", "sesoi": 0.3, "sesoi_source": "the paper's effect",
+         "paper": {"statement": "CC helps.", "source": "stability table",
+                   "rows": [{"dataset": "DyNeRF", "a": 32.81, "a_std": 0.08, "b": 32.47, "b_std": 0.22, "n": 10}]}},
         {"id": "cc_spread", "claim": "CC lowers the spread.", "metric": "psnr", "test": "variance", "a": "cc",
-         "b": "baseline", "expect": "lower"},
+         "b": "baseline", "expect": "lower", "sesoi": 2.0, "sesoi_source": "default ratio"},
         {"id": "motion", "claim": "Not logged by the fake.", "metric": "flicker_static", "test": "mean", "a": "cc",
-         "b": "baseline", "expect": "lower"},
-        {"id": "psnr_ssim", "claim": "PSNR and SSIM are weakly related.", "metric": "psnr", "versus": "ssim1",
-         "test": "correlation", "expect": "weak"},
+         "b": "baseline", "expect": "lower", "group": "extension", "sesoi": 0.01, "sesoi_source": "default"},
+        {"id": "psnr_ssim", "claim": "Some pair has equal PSNR but different SSIM.", "metric": "psnr",
+         "versus": "ssim1", "test": "decoupled", "expect": "exists", "sesoi": 0.1, "sesoi_source": "default"},
     ],
     "profiles": {
-        "quick": {"seeds": 3, "overrides": ["profile=smoke"], "expected_runtime": "seconds", "command": "study run mini",
+        "quick": {"seeds": 3, "overrides": ["profile=smoke"], "run_seconds": 5, "command": "study run mini",
                   "scenes": [{"name": "easy", "synth": {"preset": "studio", "seed": 0}}]},
         "paper": {"seeds": 2, "overrides": ["profile=paper"], "scenes": [{"name": "real", "overrides": ["data.path=/x"]}]},
     },
@@ -47,39 +49,54 @@ def frame() -> pd.DataFrame:
     df = pd.DataFrame([{"variant": v, "scene": "studio", "seed": i, "status": "FINISHED", "psnr": x}
                        for v, xs in (("baseline", base), ("cc", base + 0.5 + rng.normal(0, 0.05, 6)),
                                      ("free", base[::-1] + 0.05)) for i, x in enumerate(xs)])
-    claims = [ClaimSpec("cc_mean", "CC raises the mean PSNR.", "psnr", "mean", "higher", "cc", "baseline",
-                        paper_number="+0.3 dB"),
-              ClaimSpec("free", "Free init changes PSNR.", "psnr", "mean", "higher", "free", "baseline", pair="none"),
+    paper = PaperClaim("CC helps.", "table", (PaperRow("DyNeRF", 32.81, 32.47, 0.08, 0.22, 10),))
+    claims = [ClaimSpec("cc_mean", "CC raises the mean PSNR.", "psnr", "mean", "higher", "cc", "baseline", sesoi=0.3,
+                        paper=paper),
+              ClaimSpec("free", "Free init changes PSNR.", "psnr", "mean", "higher", "free", "baseline", pair="none",
+                        sesoi=0.05),
               ClaimSpec("gone", "Needs a variant we did not run.", "psnr", "mean", "higher", "nosuch", "baseline")]
-    return C.evaluate(df, claims)
+    return V.decide(V.evaluate(df, claims))
 
 
-def test_claims_markdown_and_latex_show_effect_ci_p_and_verdict():
+def test_claims_markdown_and_latex_show_effect_ci_sesoi_p_and_verdict():
     f = frame()
     md = claims_markdown(f)
     rows = [line for line in md.splitlines() if line.startswith("| **")]
     assert len(rows) == 3 and "| — |" in rows[1]  # no paper number
-    assert "+0.3 dB" in rows[0] and "✅ reproduced" in rows[0] and f"{f.effect[0]:+.2f} [" in rows[0]
-    assert "6 pairs" in rows[0] and "paired t" in md and "Holm" in md
-    assert "❔ inconclusive" in rows[1] and rows[1].rstrip(" |").split("|")[-1].strip().isdigit()  # n for power
+    assert "DyNeRF: 32.47 ± 0.22 → 32.81 ± 0.08 (10 runs)" in rows[0] and "own evidence" in rows[0]
+    assert "✅ reproduced" in rows[0] and f"{f.effect[0]:+.2f} [" in rows[0] and "±0.3" in rows[0]
+    assert "6 pairs" in rows[0] and "paired t" in md and "Holm over 2" in md
+    assert "❔ inconclusive" in rows[1] and "runs/arm for 80% power at the SESOI" in rows[1]
     assert "not tested" in rows[2] and "nosuch" in rows[2]
     tex = claims_latex(f, "secret5")
     assert tex.count(r"\\") == 4 and r"\toprule" in tex and "cc\\_mean" in tex
 
 
-def test_index_page_has_a_row_per_claim_charts_and_missing_studies():
+def test_index_page_names_its_families_and_shows_the_paper_beside_us():
     f = frame()
-    entries = [StudyClaims("secret5", "q", f, "secret5/index.md", 18, "abc123"),
-               StudyClaims("lpips", "q", f.iloc[:0], "lpips/index.md", 4, "abc123")]
-    page = index_markdown(entries, [("Speed", "speed_accuracy/speed_accuracy.png")], ["secret3"])
+    entries = decide_all([StudyClaims("secret5", "q", f, "secret5/index.md", 18, "abc123"),
+                          StudyClaims("lpips", "q", f.iloc[:0], "lpips/index.md", 4, "abc123")])
+    page = index_markdown(entries, [("Speed", "speed_accuracy/speed_accuracy.png")], ["secret3"], forest="forest.png")
     rows = [line for line in page.splitlines() if line.startswith("| secret5 |")]
     assert len(rows) == 3 and all("[secret5](secret5/index.md)" in r for r in rows)
-    assert f"({f.n[0]}, p = " in rows[0] and "+0.3 dB" in rows[0] and "reproduced" in rows[0]
-    assert "runs/arm for 80% power" in rows[1] and "−" not in claims_latex(f, "s")
-    assert "| lpips | (no claims stated)" in page
+    assert "32.47 ± 0.22 → 32.81 ± 0.08" in rows[0] and "distinguishable from its own spread" in rows[0]
+    assert "reproduced" in rows[0] and "±0.3" in rows[0]
+    assert "**paper** (the paper's method claims): paper (every study): Holm over 2" in page
+    assert page.index("![Every claim") < page.index("## Families") < page.index("| secret5 |")
+    assert "Studies with runs but no claims: [lpips](lpips/index.md)" in page
     assert "![Speed](speed_accuracy/speed_accuracy.png)" in page and "`secret3`" in page
     assert "Runs made by code abc123." in page and "More than one" not in page
     assert index_markdown(entries, [], []) == index_markdown(entries, [], [])  # no timestamp
+
+
+def test_forest_plot_draws_each_tested_claim_in_sesoi_units(tmp_path: Path):
+    from harness.report.forest import forest_plot, paper_points
+
+    f = frame().assign(study="secret5")
+    assert forest_plot(f, tmp_path / "forest.png").read_bytes()[:4] == b"\x89PNG"
+    row = f.iloc[0]
+    assert paper_points(row) == [("DyNeRF", pytest.approx(0.34 / 0.3))]
+    assert V.in_sesoi_units(row)[0] == pytest.approx(row.effect / 0.3)
 
 
 @pytest.mark.usefixtures("workdir")
@@ -100,12 +117,12 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     write_report("mini", studies_dir=studies, reports_root=Path("reports"), echo=lambda s: None)
     claims = pd.read_csv("reports/mini/claims.csv")
     assert list(claims.id) == ["cc_mean", "cc_spread", "motion", "psnr_ssim"]
-    assert claims.verdict[2] == C.NOT_TESTED and claims.n[0] == "3 vs 3"
+    assert claims.verdict[2] == V.NOT_TESTED and claims.n[0] == "3 vs 3"
     assert claims.effect[0] == pytest.approx(0.5)  # the fake adds 0.5 dB with colour correction
     index = Path("reports/mini/index.md").read_text()
     assert "## Claims" in index and "cc_mean" in index
     assert Path("reports/mini/claim_psnr_ssim.png").read_bytes()[:4] == b"\x89PNG"
-    assert "](claim_psnr_ssim.png)" in index and claims.n[3] == "6 runs"
+    assert "](claim_psnr_ssim.png)" in index and claims.n[3] == "3 pairs"
     assert "## Claims" in Path("reports/mini/table.md").read_text()
     assert "tab:mini-claims" in Path("reports/mini/table.tex").read_text()
 

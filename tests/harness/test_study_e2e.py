@@ -41,7 +41,7 @@ def test_secret5_smoke_run_report_and_resume(workdir: Path, capsys: pytest.Captu
 # One non-baseline variant of every study (so the gate, flow init, colour correction,
 # relocation policies, budget/iteration grids and difficulty cells all run), smoke profile.
 SMOKE_VARIANT = {
-    "secret1": "max_duration1", "secret2": None, "secret3": None, "secret4": "partial_copy",
+    "secret1": "gate_bound", "secret2": None, "secret3": None, "secret4": "partial_copy",
     "lpips": "baseline", "ablation": None, "stability": None, "speed_accuracy": None,
 }
 

@@ -1,0 +1,148 @@
+"""The statistics behind the verdicts, from scipy and statsmodels (nothing hand-rolled that
+either already provides).
+
+- ``family_adjust``: Holm (or Benjamini–Hochberg) over a named family of claims
+  (``statsmodels.stats.multitest.multipletests``);
+- ``tost_paired``, ``tost_one_sample``, ``tost_ind``: equivalence within ±SESOI, two one-sided
+  tests (``statsmodels.stats.weightstats``);
+- ``n_for_t``: runs per arm (or pairs) for 80% power of the test actually used, at the
+  smallest effect of interest — prospective, never from the observed effect
+  (``statsmodels.stats.power``);
+- ``bf_power`` / ``n_for_bf``: the power of the Brown–Forsythe test (``scipy.stats.levene``,
+  median centre) by simulation, since it has no closed form (normal samples, stated seed and
+  number of draws);
+- ``heterogeneity``: do the per-scene effects differ (the scene × variant interaction of a
+  paired design: one-way ANOVA of the paired differences by scene);
+- ``paper_evidence``: is the paper's own difference distinguishable from its own run-to-run
+  spread (``scipy.stats.ttest_ind_from_stats``, Welch)?
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+ALPHA = 0.05
+POWER = 0.8
+BF_DRAWS = 2000  # Monte-Carlo draws per simulated power
+BF_SEED = 20261124
+N_MAX = 1000  # runs per arm beyond which "needed" is reported as more than this
+
+
+def family_adjust(pvalues: list[float] | np.ndarray, method: str = "holm") -> np.ndarray:
+    """Adjusted p-values over one family; NaN (untested) stays NaN and is not counted."""
+    from statsmodels.stats.multitest import multipletests
+
+    p = np.asarray(pvalues, dtype=float)
+    out = np.full_like(p, np.nan)
+    ok = np.flatnonzero(np.isfinite(p))
+    if len(ok):
+        out[ok] = multipletests(p[ok], alpha=ALPHA, method=method)[1]
+    return out
+
+
+def tost_paired(d: np.ndarray, sesoi: float) -> float:
+    """p of the two one-sided tests that the mean paired difference lies within ±sesoi."""
+    from statsmodels.stats.weightstats import ttost_paired
+
+    d = np.asarray(d, dtype=float)
+    return float(ttost_paired(d, np.zeros_like(d), -sesoi, sesoi)[0])
+
+
+def tost_ind(a: np.ndarray, b: np.ndarray, sesoi: float) -> float:
+    """p of the two one-sided Welch tests that mean(a) − mean(b) lies within ±sesoi."""
+    from statsmodels.stats.weightstats import ttost_ind
+
+    return float(ttost_ind(np.asarray(a, float), np.asarray(b, float), -sesoi, sesoi, usevar="unequal")[0])
+
+
+def n_for_t(sesoi: float, sd: float, paired: bool) -> float:
+    """Pairs (``paired``: one-sample/paired t) or runs per arm (Welch ≈ two-sample t) for 80%
+    power of a two-sided test at ALPHA when the true effect is ``sesoi``; ``sd`` is the SD of
+    the paired differences (or the pooled SD of the runs). inf when it exceeds N_MAX."""
+    from statsmodels.stats.power import TTestIndPower, TTestPower
+
+    if not (sd > 0 and sesoi > 0):
+        return math.nan
+    solver = TTestPower() if paired else TTestIndPower()
+    with warnings.catch_warnings():  # no root within the solver's bounds: "more than N_MAX"
+        warnings.simplefilter("ignore")
+        try:
+            n = float(solver.solve_power(effect_size=sesoi / sd, alpha=ALPHA, power=POWER, alternative="two-sided"))
+        except Exception:
+            return math.inf
+    return float(math.ceil(n)) if math.isfinite(n) and n <= N_MAX else math.inf
+
+
+def levene_median_p(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Brown–Forsythe p-values of many experiments at once (rows of ``a`` against rows of ``b``):
+    the one-way ANOVA of absolute deviations from each group's median, exactly what
+    ``scipy.stats.levene(x, y, center="median")`` computes per pair (checked by the tests)."""
+    za = np.abs(a - np.median(a, axis=1, keepdims=True))
+    zb = np.abs(b - np.median(b, axis=1, keepdims=True))
+    na, nb = a.shape[1], b.shape[1]
+    ma, mb = za.mean(axis=1), zb.mean(axis=1)
+    grand = (za.sum(axis=1) + zb.sum(axis=1)) / (na + nb)
+    between = na * (ma - grand) ** 2 + nb * (mb - grand) ** 2
+    within = ((za - ma[:, None]) ** 2).sum(axis=1) + ((zb - mb[:, None]) ** 2).sum(axis=1)
+    f = between / (within / (na + nb - 2))
+    return stats.f.sf(f, 1, na + nb - 2)
+
+
+def bf_power(sd_ratio: float, n: int, draws: int = BF_DRAWS, seed: int = BF_SEED, alpha: float = ALPHA) -> float:
+    """Power of the two-sided Brown–Forsythe test with ``n`` runs per arm when one arm's SD is
+    ``sd_ratio`` times the other's (normal samples; ``draws`` simulated experiments, ``seed``)."""
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0.0, sd_ratio, (draws, n))
+    b = rng.normal(0.0, 1.0, (draws, n))
+    return float((levene_median_p(a, b) < alpha).mean())
+
+
+def n_for_bf(sd_ratio: float, draws: int = BF_DRAWS, seed: int = BF_SEED, n_max: int = 200) -> float:
+    """Smallest n per arm with simulated Brown–Forsythe power ≥ 80% at ``sd_ratio`` (inf past ``n_max``)."""
+    if not sd_ratio > 0 or sd_ratio == 1:
+        return math.inf
+    lo, hi = 2, 4
+    while bf_power(sd_ratio, hi, draws, seed) < POWER:
+        lo, hi = hi, hi * 2
+        if hi > n_max:
+            return math.inf
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if bf_power(sd_ratio, mid, draws, seed) >= POWER else (mid, hi)
+    return float(hi)
+
+
+def heterogeneity(groups: list[np.ndarray]) -> float:
+    """p that the groups' means differ (one-way ANOVA); NaN with fewer than two usable groups."""
+    groups = [np.asarray(g, float) for g in groups if len(g) >= 2]
+    if len(groups) < 2:
+        return math.nan
+    return float(stats.f_oneway(*groups).pvalue)
+
+
+@dataclass(frozen=True)
+class PaperEvidence:
+    """The paper's own difference against its own spread, for one dataset."""
+
+    effect: float
+    p: float  # Welch from the paper's summary statistics; NaN without a spread
+    how: str  # which spread was used, or why none
+
+
+def paper_evidence(a: float, b: float, a_std: float | None, b_std: float | None, n: int | None,
+                   run_sd: float | None = None, run_sd_n: int | None = None) -> PaperEvidence:
+    """``ttest_ind_from_stats`` (Welch) on the paper's a and b: with their own stds and n, else
+    with the paper's run-to-run SD on that dataset for both arms, else no test."""
+    effect = a - b
+    if a_std is not None and b_std is not None and n:
+        res = stats.ttest_ind_from_stats(a, a_std, n, b, b_std, n, equal_var=False)
+        return PaperEvidence(effect, float(res.pvalue), f"its ± over {n} runs")
+    if run_sd is not None and run_sd_n:
+        res = stats.ttest_ind_from_stats(a, run_sd, run_sd_n, b, run_sd, run_sd_n, equal_var=False)
+        return PaperEvidence(effect, float(res.pvalue), f"its run-to-run SD {run_sd:g} ({run_sd_n} runs) for both")
+    return PaperEvidence(effect, math.nan, "no spread reported")
