@@ -1,0 +1,105 @@
+"""``reports/findings.json``: every number ``reports/FINDINGS.md`` may cite, made from the reports.
+
+``collect_findings(root)`` reads the generated files under ``root`` (each study's
+``summary.csv``, ``variance.csv``, ``ladders.csv``, ``speed_accuracy_smallest.csv`` and the
+index's ``claims.csv``) and names every value: ``ablation.claims.flow_improves.effect``,
+``secret5.psnr.cc.studio.mean``, ``stability.psnr.diff.ftgspp.base-speed4`` (the difference of
+two cells' means), ... ``write_findings`` saves them as JSON.
+
+FINDINGS.md cites a number with the key it comes from, in an HTML comment right after it
+(invisible when rendered): ``+0.77<!--ablation.claims.flow_improves.effect-->``; ``|abs``
+after the key cites the magnitude. ``check`` returns every problem: a decimal number without a
+key, an unknown key, or a number the data does not hold at the precision it is printed with.
+A test runs it on the committed files, so FINDINGS.md cannot drift from the reports.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import re
+from pathlib import Path
+
+import pandas as pd
+
+NUMBER = re.compile(r"(?<![\w.`/#-])([+\-−]?\d+\.\d+)(?:<!--([\w.\-|:]+)-->)?")
+
+
+def _put(out: dict[str, float], key: str, value: object) -> None:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return
+    if math.isfinite(v):
+        out[key] = v
+
+
+def _summary(study: str, path: Path, out: dict[str, float]) -> None:
+    df = pd.read_csv(path)
+    for r in df.itertuples():
+        for col in ("mean", "std", "ci95"):
+            _put(out, f"{study}.{r.metric}.{r.variant}.{r.scene}.{col}", getattr(r, col))
+    for metric, sub in df.groupby("metric"):
+        means = {(r.variant, r.scene): r.mean for r in sub.itertuples()}
+        for (va, sa), (vb, sb) in itertools.permutations(means, 2):
+            if sa == sb:
+                _put(out, f"{study}.{metric}.diff.{sa}.{va}-{vb}", means[(va, sa)] - means[(vb, sb)])
+            elif va == vb:
+                _put(out, f"{study}.{metric}.diff.{va}.{sa}-{sb}", means[(va, sa)] - means[(vb, sb)])
+
+
+def _table(study: str, path: Path, kind: str, keys: list[str], out: dict[str, float]) -> None:
+    df = pd.read_csv(path)
+    for _, r in df.iterrows():
+        name = ".".join(str(r[k]) for k in keys)
+        for col, value in r.items():
+            if col not in keys:
+                _put(out, f"{study}.{kind}.{name}.{col}", value)
+
+
+def collect_findings(root: Path) -> dict[str, float]:
+    """Every named number under ``root`` (a reports folder)."""
+    out: dict[str, float] = {}
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        study = folder.name
+        if (folder / "summary.csv").is_file():
+            _summary(study, folder / "summary.csv", out)
+        if (folder / "variance.csv").is_file():
+            _table(study, folder / "variance.csv", "variance", ["component"], out)
+        if (folder / "ladders.csv").is_file():
+            _table(study, folder / "ladders.csv", "ladder", ["ladder", "scene", "variant"], out)
+        if (folder / "speed_accuracy_smallest.csv").is_file():
+            _table(study, folder / "speed_accuracy_smallest.csv", "smallest", ["scene"], out)
+    if (root / "claims.csv").is_file():  # the index's verdicts: corrected over every study
+        for _, r in pd.read_csv(root / "claims.csv").iterrows():
+            for col in ("effect", "ci_low", "ci_high", "sesoi", "p", "p_adj", "p_tost_adj", "n_needed"):
+                _put(out, f"{r.study}.claims.{r.id}.{col}", r[col])
+    return out
+
+
+def write_findings(root: Path) -> Path:
+    """``root/findings.json`` from the reports under ``root``."""
+    path = root / "findings.json"
+    path.write_text(json.dumps(collect_findings(root), indent=1, sort_keys=True) + "\n")
+    return path
+
+
+def check(text: str, findings: dict[str, float]) -> list[str]:
+    """Problems with the numbers ``text`` cites (empty when every one is backed by ``findings``)."""
+    problems = []
+    body = re.sub(r"`[^`]*`", "", text)  # code spans (commands, commit ids) are not findings
+    for m in NUMBER.finditer(body):
+        shown, key = m.group(1).replace("−", "-"), m.group(2)
+        if key is None:
+            problems.append(f"{shown}: no key says which generated number it is")
+            continue
+        name, _, mod = key.partition("|")
+        if name not in findings:
+            problems.append(f"{shown}: unknown key {name}")
+            continue
+        value = abs(findings[name]) if mod == "abs" else findings[name]
+        decimals = len(shown.split(".")[1])
+        if round(value, decimals) != round(float(shown), decimals) and f"{value:.{decimals}f}" != shown.lstrip("+"):
+            problems.append(f"{shown}: {name} is {value:.{decimals + 2}f}")
+    return problems

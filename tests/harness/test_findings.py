@@ -1,0 +1,37 @@
+"""FINDINGS.md cannot drift from the reports: every decimal it cites names the generated number."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from harness.report.findings import check, collect_findings
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _reports(tmp_path: Path) -> Path:
+    (tmp_path / "secret5").mkdir()
+    pd.DataFrame([{"variant": "baseline", "scene": "studio", "metric": "psnr", "mean": 29.2413, "std": 0.2614,
+                   "ci95": 0.32},
+                  {"variant": "cc", "scene": "studio", "metric": "psnr", "mean": 29.2612, "std": 0.11, "ci95": 0.14}]
+                 ).to_csv(tmp_path / "secret5" / "summary.csv", index=False)
+    pd.DataFrame([{"study": "secret5", "id": "cc_raises_mean", "effect": 0.0199, "ci_low": -0.5, "ci_high": 0.55,
+                   "sesoi": 0.34, "p": 0.9, "p_adj": 1.0, "p_tost_adj": 0.7, "n_needed": 15}]
+                 ).to_csv(tmp_path / "claims.csv", index=False)
+    return tmp_path
+
+
+def test_a_cited_number_must_name_the_generated_value_it_comes_from(tmp_path: Path) -> None:
+    f = collect_findings(_reports(tmp_path))
+    assert f["secret5.psnr.cc.studio.std"] == 0.11 and f["secret5.claims.cc_raises_mean.sesoi"] == 0.34
+    assert f["secret5.psnr.diff.studio.cc-baseline"] == 29.2612 - 29.2413
+    good = ("Run-to-run SD 0.26<!--secret5.psnr.baseline.studio.std--> dB against 0.11<!--secret5.psnr.cc.studio.std-->;"
+            " CC +0.02<!--secret5.claims.cc_raises_mean.effect--> dB (SESOI ±0.34<!--secret5.claims.cc_raises_mean.sesoi-->),"
+            " a gap of 0.020<!--secret5.psnr.diff.studio.baseline-cc|abs--> dB. Commit `7fae4f1`, 5 seeds.")
+    assert check(good, f) == []
+    assert check("fast motion costs 0.8–1.0 dB", f) == ["0.8: no key says which generated number it is",
+                                                         "1.0: no key says which generated number it is"]
+    wrong = check("SD 0.27<!--secret5.psnr.baseline.studio.std--> and 1.5<!--nosuch.key-->", f)
+    assert wrong == ["0.27: secret5.psnr.baseline.studio.std is 0.2614", "1.5: unknown key nosuch.key"]
