@@ -23,6 +23,7 @@ from harness.analysis import verdicts as V
 from harness.report import USER_REPORTS
 from harness.report.claims import VERDICT_MARK, VERDICT_RULES, effect_text, sesoi_text, verdict_text
 from harness.report.fmt import p_text, text
+from harness.report.findings import write_findings
 from harness.report.forest import forest_plot
 from harness.report.results import collect
 from harness.spec.files import list_studies
@@ -159,6 +160,7 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
     forest = forest_plot(allf, root / FOREST) if len(allf) else None
     path = root / "index.md"
     path.write_text(index_markdown(entries, charts, missing, trainer_fingerprint(), FOREST if forest else ""))
+    write_findings(root)  # every number FINDINGS.md may cite (report.findings)
     n = sum(len(e.frame) for e in entries)
     echo(f"index: {n} claims over {len(entries)} studies with runs ({len(missing)} without) written to {path}")
     return path
