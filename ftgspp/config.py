@@ -122,7 +122,7 @@ class TrainConfig:
     backend: str = "auto"  # auto | reference | cpu | gsplat
     device: str = "auto"  # auto | cpu | cuda
     threads: int = 0  # torch threads; 0 = leave as is (portable mode: 1)
-    determinism: str = "default"  # default | portable (same bits on any x86-64; ftgspp/determinism.py)
+    determinism: str = "default"  # default | portable (same bits on any x86-64; ftgspp/runtime/determinism.py)
     dispatch: str = "native"  # torch CPU kernels as on another CPU: native | avx512 | avx2 | baseline
     ssim_weight: float = 0.2
     lpips_weight: float = 0.0  # 0.01 on GPU profiles

@@ -29,15 +29,13 @@ from tqdm import tqdm
 from ftgspp.color import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
-from ftgspp.determinism import apply_runtime, determinism_domain
-from ftgspp.dispatch_run import check_dispatch, child_main, needs_child, train_in_child
-from ftgspp.errors import InputError
 from ftgspp.evaluate import check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
-from ftgspp.train_state import TrainState, set_learning_rates
+from ftgspp.runtime import enter, needs_child, train_in_child
 from ftgspp.tracker import NullTracker, RunResult, Tracker
+from ftgspp.train_state import TrainState, set_learning_rates
 from ftgspp.view import render_view
 
 log = logging.getLogger("ftgspp.train")
@@ -51,15 +49,6 @@ class Diverged(Exception):
     def __init__(self, step: int, seconds: float, loss: float) -> None:
         super().__init__(f"loss is {loss} at iteration {step}")
         self.step, self.seconds = step, seconds
-
-
-def pick_device(name: str) -> torch.device:
-    """``auto`` is CUDA when available, else CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise InputError("device", "cuda requested but no CUDA device is available")
-    return torch.device(name)
 
 
 def _peak_rss_mb() -> float:
@@ -111,21 +100,16 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     Bad input (unknown policy, unavailable feature, bad scene) raises ``InputError``.
     """
     tracker = tracker or NullTracker()
-    check_dispatch(cfg)
     check_eval_lpips(cfg.eval_lpips)
     if needs_child(cfg):  # another determinism environment / kernel dispatch: train in a fresh process
         return train_in_child(cfg, tracker)
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "config.json").write_text(json.dumps(asdict(cfg), indent=2))
-    try:
-        apply_runtime(cfg.determinism, cfg.threads)
-    except (RuntimeError, ValueError) as err:
-        raise InputError("determinism", str(err)) from None
-    domain = determinism_domain(cfg.determinism, cfg.threads)
-    (out_dir / "determinism.json").write_text(json.dumps(domain, indent=2))
-    tracker.set_tags({f"determinism.{k}": v for k, v in domain.items()})
-    device = pick_device(cfg.device)
+    env = enter(cfg)
+    (out_dir / "determinism.json").write_text(json.dumps(env.domain, indent=2))
+    tracker.set_tags({f"determinism.{k}": v for k, v in env.domain.items()})
+    device = env.device
     torch.manual_seed(cfg.seed)
 
     state = TrainState.create(cfg, scene, device)
@@ -262,7 +246,9 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
     st.save(out_dir / CHECKPOINT)
 
 
-if __name__ == "__main__":  # a child started by ftgspp.dispatch_run.train_in_child
+if __name__ == "__main__":  # a child started by ftgspp.runtime.child.train_in_child
     import sys
+
+    from ftgspp.runtime.child import child_main
 
     raise SystemExit(child_main(Path(sys.argv[1]), train))

@@ -17,7 +17,7 @@ import pytest
 import torch
 from test_trainer import params
 
-from ftgspp.determinism import determinism_domain, isa_class, portable_environment, requested_mode
+from ftgspp.runtime.determinism import determinism_domain, isa_class, portable_environment, requested_mode
 
 # Outer environments that mimic other machines: torch kernel dispatch, oneDNN ISA caps, no
 # AVX-512/AVX2 in NumPy and OpenCV, thread counts, Numba kernels compiled for the baseline ISA.

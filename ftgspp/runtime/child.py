@@ -1,4 +1,4 @@
-"""One training run in a fresh process when this process's environment is not the run's.
+"""One training run in a child process when this process's environment is not the run's.
 
 Kernel dispatch is fixed when the libraries load, so a run whose determinism settings
 differ from this process's trains in a child process started with the right environment,
@@ -12,6 +12,9 @@ and the parent collects its metrics, loss curve, artifacts and determinism domai
   hardware share of run-to-run variance (secret 5). ``native`` is this machine's best.
 
     python -m ftgspp.trainer OUT_DIR/dispatch_config.json   # what the parent starts (child_main)
+
+(The entry point is the trainer's ``__main__``: this module cannot import the trainer, which
+imports it.)
 """
 
 from __future__ import annotations
@@ -25,8 +28,8 @@ from pathlib import Path
 from typing import Callable
 
 from ftgspp.config import TrainConfig, train_config_from_dict
-from ftgspp.determinism import MARKER, PORTABLE_FIXED, portable_environment
 from ftgspp.errors import InputError
+from ftgspp.runtime.determinism import MARKER, PORTABLE_FIXED, portable_environment
 from ftgspp.tracker import RunResult, Tracker
 
 DISPATCHES = {"native": None, "avx512": "avx512", "avx2": "avx2", "baseline": "default"}
@@ -34,7 +37,9 @@ CHILD = "FTGSPP_RUN_CHILD"  # set in a child, so a mismatch there is an error, n
 
 
 def needs_child(cfg: TrainConfig) -> bool:
-    """Whether this process's environment differs from what ``cfg`` needs (see the module doc)."""
+    """Whether this process's environment differs from what ``cfg`` needs (see the module doc);
+    ``InputError`` for a dispatch no process can have (``check_dispatch``)."""
+    check_dispatch(cfg)
     portable_here = os.environ.get(MARKER) == "portable"
     if cfg.determinism == "portable":
         return not portable_here

@@ -27,7 +27,7 @@ Two modes (``TrainConfig.determinism``):
 Environment variables are read when the libraries load, so the portable environment must
 exist before Python imports torch: ``ftgspp train determinism=portable`` re-executes itself
 with it (``reexec_if_needed``), and ``train()`` called in a process without it trains in a
-child process that has it (``ftgspp.dispatch_run``).
+child process that has it (``ftgspp.runtime.child``).
 
     env = portable_environment(os.environ)      # for a subprocess
     domain = determinism_domain("portable")      # what to record with a run
@@ -129,7 +129,7 @@ def apply_runtime(mode: str, threads: int) -> int:
         if not portable_env_active():
             raise RuntimeError("determinism=portable needs its environment before torch starts: run it with "
                                "`ftgspp train`/`study run` (they set it), or start Python with "
-                               "ftgspp.determinism.portable_environment(os.environ)")
+                               "ftgspp.runtime.determinism.portable_environment(os.environ)")
         import cv2
 
         torch.backends.mkldnn.enabled = False
