@@ -4,12 +4,15 @@ Kernel dispatch is fixed when the libraries load, so a run whose determinism set
 differ from this process's trains in a child process started with the right environment,
 and the parent collects its metrics, loss curve, artifacts and determinism domain:
 
-- ``determinism=portable`` from a process without the portable environment (e.g. a
-  ``study run`` mixing modes, or ``train()`` called from Python);
+- ``determinism=portable`` from a process without the portable environment (``ftgspp train
+  determinism=portable``, a ``study run`` mixing modes, or ``train()`` called from Python);
 - ``determinism=default`` from a process that has it;
 - ``dispatch=avx512|avx2|baseline``: the same config, seed and initialisation trained as
   if on another CPU (torch's kernel set, ``ATEN_CPU_CAPABILITY``), which measures the
   hardware share of run-to-run variance (secret 5). ``native`` is this machine's best.
+
+The child's output (progress bar, log lines, errors) is copied to the parent's stderr as it
+comes and to ``OUT_DIR/dispatch_child.log``; a failed child's last line is in the parent's error.
 
     python -m ftgspp.trainer OUT_DIR/dispatch_config.json   # what the parent starts (child_main)
 
@@ -19,8 +22,11 @@ imports it.)
 
 from __future__ import annotations
 
+import codecs
 import json
+import logging
 import os
+import re
 import subprocess
 import sys
 from dataclasses import asdict
@@ -79,12 +85,10 @@ def train_in_child(cfg: TrainConfig, tracker: Tracker) -> RunResult:
     config_file.write_text(json.dumps({"config": asdict(cfg)}, indent=2))
     if os.environ.get(CHILD):
         raise RuntimeError("a training child process did not get the environment its run needs")
-    proc = subprocess.run([sys.executable, "-m", "ftgspp.trainer", str(config_file)], env=child_environment(cfg),
-                          capture_output=True, text=True)
-    (out_dir / "dispatch_child.log").write_text(proc.stdout + proc.stderr)
+    code, last = _run_streamed([sys.executable, "-m", "ftgspp.trainer", str(config_file)], child_environment(cfg),
+                               out_dir / "dispatch_child.log")
     result_file = out_dir / "dispatch_result.json"
-    if proc.returncode != 0 or not result_file.exists():
-        last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+    if code != 0 or not result_file.exists():
         raise RuntimeError(f"training (determinism={cfg.determinism}, dispatch={cfg.dispatch}) failed in its "
                            f"child process: {last}")
     blob = json.loads(result_file.read_text())
@@ -96,6 +100,25 @@ def train_in_child(cfg: TrainConfig, tracker: Tracker) -> RunResult:
         tracker.log_artifact(Path(path), artifact_path)
     return RunResult(status=blob["status"], metrics=blob["metrics"], failure=blob["failure"], out_dir=out_dir,
                      artifacts=[Path(p) for p, where in blob["artifacts"] if where == "renders"])
+
+
+def _run_streamed(argv: list[str], env: dict[str, str], log_file: Path) -> tuple[int, str]:
+    """Run ``argv`` with its stdout and stderr (merged) copied to this process's stderr as they
+    come and to ``log_file``; returns its exit code and its last non-empty line."""
+    decoder = codecs.getincrementaldecoder("utf-8")(errors="replace")
+    tail = ""
+    with open(log_file, "wb") as log, subprocess.Popen(argv, env=env, stdout=subprocess.PIPE,
+                                                       stderr=subprocess.STDOUT) as proc:
+        assert proc.stdout is not None
+        while chunk := proc.stdout.read1(1 << 16):  # whatever is there: a progress bar's \r updates too
+            log.write(chunk)
+            text = decoder.decode(chunk)
+            sys.stderr.write(text)
+            sys.stderr.flush()
+            tail = (tail + text)[-4096:]
+        code = proc.wait()
+    lines = [line for line in re.split(r"[\r\n]", tail) if line.strip()]
+    return code, lines[-1] if lines else "no output"
 
 
 class _Recorder:
@@ -123,6 +146,11 @@ def child_main(config_file: Path, train: Callable[..., RunResult]) -> int:
     """The child: train the saved config with ``train`` and write what the parent collects."""
     from ftgspp.data.load import load_scene
 
+    handler = logging.StreamHandler()  # the parent shows what the child logs
+    handler.setFormatter(logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"))
+    package_log = logging.getLogger("ftgspp")
+    package_log.addHandler(handler)
+    package_log.setLevel(logging.INFO)
     blob = json.loads(config_file.read_text())
     cfg = train_config_from_dict(blob["config"])
     recorder = _Recorder()
