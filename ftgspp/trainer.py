@@ -66,25 +66,28 @@ def loss_terms(
 ) -> dict[str, torch.Tensor]:
     """The training loss of DESIGN.md section 4, term by term; ``"total"`` is their weighted sum.
 
-    total = photometric [(1 − λ) L1 + λ (1 − SSIM)] + lpips_weight · LPIPS-alex
+    With the weights of ``cfg.loss`` (λ = ``ssim``):
+
+    total = photometric [(1 − λ) L1 + λ (1 − SSIM)] + lpips · LPIPS-alex
             + opacity_reg · mean(σ(o) φ(t).detach()) + scale_reg · mean(exp S)
             [+ gate_reg · mean(1 − g)] [+ cc_reg · Σ(‖ΔM‖² + ‖b‖²)]
     """
-    photo, l1 = photometric(image, gt, cfg.ssim_weight)
+    w = cfg.loss
+    photo, l1 = photometric(image, gt, w.ssim)
     terms = {"photometric": photo, "l1": l1}
     total = photo
     if lpips_net is not None:  # LPIPS with the correct [-1, 1] inputs
         terms["lpips"] = lpips_distance(lpips_net, image.clamp(0, 1), gt)
-        total = total + cfg.lpips_weight * terms["lpips"]
+        total = total + w.lpips * terms["lpips"]
     terms["opacity"] = opacity_4d(model.base_opacity(), g.temporal)
     terms["scale"] = scale_penalty(model.params["scales"])
-    total = total + cfg.opacity_reg * terms["opacity"] + cfg.scale_reg * terms["scale"]
+    total = total + w.opacity_reg * terms["opacity"] + w.scale_reg * terms["scale"]
     if cfg.model.gate:
         terms["gate"] = gate_penalty(model.gate())
-        total = total + cfg.gate_reg * terms["gate"]
+        total = total + w.gate_reg * terms["gate"]
     if cc is not None:
         terms["cc"] = cc.regularizer()
-        total = total + cfg.model.cc_reg * terms["cc"]
+        total = total + w.cc_reg * terms["cc"]
     terms["total"] = total
     return terms
 
@@ -187,7 +190,7 @@ def _diagnostics(model, scene, cfg, out_dir: Path) -> tuple[dict[str, float], li
 
 def _lpips_loss_net(cfg: TrainConfig, device: torch.device) -> torch.nn.Module | None:
     """LPIPS-Alex for the optional perceptual loss term (GPU profiles); None when its weight is 0."""
-    if cfg.lpips_weight <= 0:
+    if cfg.loss.lpips <= 0:
         return None
     from ftgspp.lpips import load_lpips
 
