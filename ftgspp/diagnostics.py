@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 import torch
 
-from ftgspp.config import TrainConfig, train_config_from_dict
+from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.diagnostics_colors import color_wheel, flow_to_rgb  # noqa: F401  (re-exported)
 from ftgspp.errors import InputError
@@ -442,20 +442,6 @@ def run_diagnostics(
     return result
 
 
-def load_run(run_dir: str | Path, device: str = "cpu") -> tuple[FreeTimeGaussians, TrainConfig]:
-    """The model and config of a finished run (``config.json`` + ``gaussians.pt``)."""
-    run = Path(run_dir)
-    for name in ("config.json", "gaussians.pt"):
-        if not (run / name).is_file():
-            raise InputError(run / name, "not found (is this a finished training run?)")
-    try:
-        cfg = train_config_from_dict(json.loads((run / "config.json").read_text()))
-    except (json.JSONDecodeError, TypeError) as err:
-        raise InputError(run / "config.json", f"unreadable: {err}") from err
-    params = torch.load(run / "gaussians.pt", map_location=device, weights_only=True)
-    return FreeTimeGaussians(params, cfg.model), cfg
-
-
 def main(argv: list[str] | None = None) -> int:
     """``ftgspp diagnose RUN_DIR [--out DIR] [--theta θ] [--frame F] [--camera NAME]``."""
     ap = argparse.ArgumentParser(prog="ftgspp diagnose", description=__doc__.split("\n\n")[0])
@@ -472,6 +458,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.theta < 1:
         raise InputError("--theta", f"must be in (0, 1), got {args.theta}")
 
+    from ftgspp.checkpoint import load_run
     from ftgspp.data.load import load_scene
 
     model, cfg = load_run(args.run_dir)

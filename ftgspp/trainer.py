@@ -19,13 +19,12 @@ import logging
 import math
 import resource
 import time
-from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
 import torch
 from tqdm import tqdm
 
+from ftgspp.checkpoint import save_config, save_model
 from ftgspp.color import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
@@ -108,7 +107,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
         return train_in_child(cfg, tracker)
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "config.json").write_text(json.dumps(asdict(cfg), indent=2))
+    save_config(cfg, out_dir)
     env = enter(cfg)
     (out_dir / "determinism.json").write_text(json.dumps(env.domain, indent=2))
     tracker.set_tags({f"determinism.{k}": v for k, v in env.domain.items()})
@@ -132,7 +131,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     model, cc, elapsed = state.model, state.cc, state.elapsed
     # Order matters: the model, then the network-free metrics, are on disk before any
     # optional metric (LPIPS) or diagnostic runs, so none of those can lose the run.
-    _save_model(model, cc, out_dir)
+    save_model(model, cc, out_dir)
     metrics, artifacts = evaluate(model, scene, cfg, out_dir)
     metrics.update({
         "train_seconds": elapsed,
@@ -155,14 +154,6 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     for a in diag_files:
         tracker.log_artifact(a, "diagnostics")
     return RunResult(status="FINISHED", metrics=metrics, out_dir=out_dir, artifacts=artifacts)
-
-
-def _save_model(model: FreeTimeGaussians, cc: ColorCorrection | None, out_dir: Path) -> None:
-    """``gaussians.pt`` (activated-free raw parameters) and the learned colour transforms."""
-    torch.save({k: v.detach().cpu() for k, v in model.params.items()}, out_dir / "gaussians.pt")
-    if cc is not None:
-        np.save(out_dir / "color_correction.npy", cc.matrices().cpu().numpy())
-        np.save(out_dir / "color_bias.npy", cc.bias.detach().cpu().numpy())
 
 
 def _write_metrics(out_dir: Path, metrics: dict[str, float]) -> None:
