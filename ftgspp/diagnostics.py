@@ -35,7 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -339,6 +339,49 @@ def ground_truth_scores(model: FreeTimeGaussians, scene: Scene, cam: int, gt: Gr
 # --------------------------------------------------------------------------- run + CLI
 
 
+@dataclass
+class DiagnosticsResult:
+    """What ``run_diagnostics`` measured and the files it wrote (``diagnostics.json``: ``as_json()``)."""
+
+    camera: str  # name of the camera of the single-camera plots
+    frame: int
+    theta: float  # opacity threshold of the effective lifetime
+    split: float  # Δt/T separating short- from long-lived Gaussians
+    row: int  # image row of the x–t slice
+    lifetime: dict[str, float]  # group counts, median Δt/T; with ground truth, where the groups lie
+    velocity_px_per_frame: dict[str, float]  # mean and p99 composited image speed
+    xt_slice_mae: float
+    motion: dict[str, float] | None = None  # motion error (scenes with ground truth)
+    scores: dict[str, float] | None = None  # ground-truth scores, under the names they are logged
+    files: dict[str, Path] = field(default_factory=dict)  # every PNG, and ``json``
+
+    def metrics(self) -> dict[str, float]:
+        """The numbers a training run logs, by metric name (a number not measured is left out)."""
+        motion = self.motion or {}
+        numbers = {
+            "lifetime_long_on_static": self.lifetime.get("long_lived_on_static"),
+            "lifetime_short_on_dynamic": self.lifetime.get("short_lived_on_dynamic"),
+            "lifetime_median_fraction": self.lifetime.get("median_fraction"),
+            "motion_epe_dynamic": motion.get("epe_dynamic"),
+            "motion_leak_static": motion.get("leak_static"),
+            "xt_slice_mae": self.xt_slice_mae,
+            **(self.scores or {}),
+        }
+        return {k: float(v) for k, v in numbers.items() if v is not None}
+
+    def as_json(self) -> dict:
+        """The content of ``diagnostics.json`` (its own path left out of ``files``)."""
+        out: dict = {"camera": self.camera, "frame": self.frame, "theta": self.theta, "split": self.split,
+                     "row": self.row, "lifetime": self.lifetime, "velocity_px_per_frame": self.velocity_px_per_frame,
+                     "xt_slice_mae": self.xt_slice_mae}  # fmt: skip
+        if self.motion is not None:
+            out["motion"] = self.motion
+        if self.scores is not None:
+            out["scores"] = self.scores
+        out["files"] = {k: str(v) for k, v in self.files.items() if k != "json"}
+        return out
+
+
 def run_diagnostics(
     model: FreeTimeGaussians,
     scene: Scene,
@@ -350,12 +393,12 @@ def run_diagnostics(
     split: float = 0.5,
     row: int | None = None,
     backend: str | None = None,
-) -> dict:
+) -> DiagnosticsResult:
     """Write every diagnostic PNG and ``diagnostics.json`` into ``out_dir``; return the numbers.
 
     ``camera`` (index into ``scene.cameras``) defaults to the first test camera, ``frame``
-    to the middle frame, ``row`` (x–t slice) to the middle image row. The returned dict has
-    the numbers (``lifetime``, ``motion`` when the scene has ground truth) and ``files``.
+    to the middle frame, ``row`` (x–t slice) to the middle image row. ``motion`` and
+    ``scores`` are measured on scenes with ground truth only.
     """
     from ftgspp import diagnostics_plots as plots
 
@@ -372,14 +415,13 @@ def run_diagnostics(
     sh = cfg.model.sh_degree
     bg = torch.tensor(cfg.background, dtype=torch.float32, device=model.params["means"].device)
     where = f"{cam.name}, frame {frame} (t = {t:.3f} s)"
-    files: dict[str, str] = {}
-    result: dict = {"camera": cam.name, "frame": frame, "theta": theta, "split": split, "row": row}
+    files: dict[str, Path] = {}
 
     # lifetimes
     frac = lifetime_fractions(model, theta, scene.duration)
     counts, edges = lifetime_histogram(frac)
     visible = frac > 0
-    result["lifetime"] = {
+    lifetime = {
         "n_gaussians": int(len(frac)),
         "n_never_visible": int((~visible).sum()),
         "n_short_lived": int((visible & (frac < split)).sum()),
@@ -405,21 +447,23 @@ def run_diagnostics(
     flow, alpha = velocity_map(model, cam, t, scene.fps, backend)
     files["velocity_map"] = plots.plot_velocity_map(rgb, flow, alpha > ALPHA_MIN, where, out / "velocity_map.png")
     speed = np.linalg.norm(flow, axis=-1)[alpha > ALPHA_MIN]
-    result["velocity_px_per_frame"] = {"mean": float(speed.mean()) if speed.size else 0.0,
-                                       "p99": float(np.percentile(speed, 99)) if speed.size else 0.0}
+    velocity = {"mean": float(speed.mean()) if speed.size else 0.0,
+                "p99": float(np.percentile(speed, 99)) if speed.size else 0.0}
 
     # x–t slice
     gt_xt = xt_slice(scene.frames(cam_i), row).astype(np.float32) / 255.0
     all_frames = render_frames(model, cam, scene.times, sh, bg, backend)  # [F, H, W, 3]
     render_xt = xt_slice(all_frames, row)
     files["xt_slice"] = plots.plot_xt_slice(gt_xt, render_xt, cam.name, row, scene.fps, out / "xt_slice.png")
-    result["xt_slice_mae"] = float(np.abs(gt_xt - render_xt).mean())
+    result = DiagnosticsResult(camera=cam.name, frame=frame, theta=theta, split=split, row=row, lifetime=lifetime,
+                               velocity_px_per_frame=velocity, xt_slice_mae=float(np.abs(gt_xt - render_xt).mean()),
+                               files=files)  # fmt: skip
 
     # ground truth: motion error and where the lifetime groups lie
     gt = load_ground_truth(scene, cam_i)
     if gt is not None:
         motion, maps = scene_motion_error(model, scene, cam_i, gt, backend=backend)
-        result["motion"] = motion
+        result.motion = motion
         v, a = maps[frame]
         files["motion_error"] = plots.plot_motion_error(
             v, a > ALPHA_MIN, gt.flow3d[frame], gt.objects[frame], motion, where, out / "motion_error.png")
@@ -428,17 +472,15 @@ def run_diagnostics(
             g = load_ground_truth(scene, c)
             if g is not None:
                 gts[c] = g
-        result["lifetime"].update(lifetime_vs_objects(model, scene, gts, frac, split))
-        result["scores"] = ground_truth_scores(model, scene, cam_i, gt, frac < split, all_frames, backend)
+        lifetime.update(lifetime_vs_objects(model, scene, gts, frac, split))
+        result.scores = ground_truth_scores(model, scene, cam_i, gt, frac < split, all_frames, backend)
 
-    result["files"] = {k: str(v) for k, v in files.items()}
-    (out / "diagnostics.json").write_text(json.dumps(result, indent=2))
-    result["files"]["json"] = str(out / "diagnostics.json")
-    life = result["lifetime"]
+    (out / "diagnostics.json").write_text(json.dumps(result.as_json(), indent=2))
+    files["json"] = out / "diagnostics.json"
     log.info("diagnostics of %s in %s: %d short-lived, %d long-lived Gaussians%s", cam.name, out,
-             life["n_short_lived"], life["n_long_lived"],
-             "; motion EPE %.4f, static leak %.4f" % (result["motion"]["epe_dynamic"], result["motion"]["leak_static"])
-             if "motion" in result else "")  # fmt: skip
+             lifetime["n_short_lived"], lifetime["n_long_lived"],
+             "; motion EPE %.4f, static leak %.4f" % (motion["epe_dynamic"], motion["leak_static"])
+             if gt is not None else "")  # fmt: skip
     return result
 
 
@@ -475,7 +517,7 @@ def main(argv: list[str] | None = None) -> int:
     backend = args.backend or ("auto" if cfg.backend == "gsplat" else cfg.backend)
     res = run_diagnostics(model, scene, cfg, out, theta=args.theta, frame=args.frame, camera=camera,
                           split=args.split, row=args.row, backend=backend)  # fmt: skip
-    for path in res["files"].values():
+    for path in res.files.values():
         print(path)
     return 0
 

@@ -28,6 +28,7 @@ from ftgspp.checkpoint import save_config, save_model
 from ftgspp.color import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
+from ftgspp.diagnostics import run_diagnostics
 from ftgspp.evaluate import check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
@@ -143,9 +144,10 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     metrics.update(evaluate_lpips(model, scene, cfg))
     _write_metrics(out_dir, metrics)
     diag_files: list[Path] = []
-    if cfg.diagnostics:
-        diag_metrics, diag_files = _diagnostics(model, scene, cfg, out_dir / "diagnostics")
-        metrics.update(diag_metrics)
+    if cfg.diagnostics:  # lifetime / velocity / x-t / motion-error plots and the numbers studies tabulate
+        diag = run_diagnostics(model, scene, cfg, out_dir / "diagnostics")
+        metrics.update(diag.metrics())
+        diag_files = list(diag.files.values())
     metrics["peak_rss_mb"] = _peak_rss_mb()  # now including evaluation and diagnostics
     _write_metrics(out_dir, metrics)
     tracker.log_metrics(metrics)
@@ -158,25 +160,6 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
 
 def _write_metrics(out_dir: Path, metrics: dict[str, float]) -> None:
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-
-
-def _diagnostics(model, scene, cfg, out_dir: Path) -> tuple[dict[str, float], list[Path]]:
-    """Diagnostic plots of the trained model and the numbers studies tabulate."""
-    from ftgspp.diagnostics import run_diagnostics
-
-    d = run_diagnostics(model, scene, cfg, out_dir)
-    life = d.get("lifetime", {})
-    numbers = {
-        "lifetime_long_on_static": life.get("long_lived_on_static"),
-        "lifetime_short_on_dynamic": life.get("short_lived_on_dynamic"),
-        "lifetime_median_fraction": life.get("median_fraction"),
-        "motion_epe_dynamic": d.get("motion", {}).get("epe_dynamic"),
-        "motion_leak_static": d.get("motion", {}).get("leak_static"),
-        "xt_slice_mae": d.get("xt_slice_mae"),
-        **d.get("scores", {}),  # ground-truth scores for the claims (scenes with a gt/ folder)
-    }
-    files = [Path(f) for f in d.get("files", {}).values()] + [out_dir / "diagnostics.json"]
-    return {k: float(v) for k, v in numbers.items() if v is not None}, files
 
 
 def _lpips_loss_net(cfg: TrainConfig, device: torch.device) -> torch.nn.Module | None:

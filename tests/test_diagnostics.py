@@ -260,8 +260,8 @@ def test_run_diagnostics_writes_readable_outputs(tmp_path):
     cfg.model.sh_degree = 0
     res = run_diagnostics(model, scene, cfg, tmp_path / "diag", frame=1)
     names = {"lifetime_histogram", "lifetime_groups", "velocity_map", "xt_slice", "motion_error", "json"}
-    assert set(res["files"]) == names
-    for path in res["files"].values():
+    assert set(res.files) == names
+    for path in res.files.values():
         assert Path(path).is_file() and Path(path).stat().st_size > 1000
     saved = json.loads((tmp_path / "diag" / "diagnostics.json").read_text())
     assert saved["lifetime"]["n_short_lived"] == int(is_obj.sum())
