@@ -6,7 +6,10 @@ Gaussians at that frame's time, render, compute the loss of DESIGN.md section 4
 ``refine_every`` iterations relocate dead Gaussians. Everything the loop mutates lives in
 one ``TrainState`` (``ftgspp/train_state.py``); checkpoints go to
 ``<out_dir>/checkpoint.pt`` and a re-run with the same ``out_dir`` resumes from it.
-Evaluation on the held-out cameras ends the run.
+Evaluation on the held-out cameras ends the run, then the diagnostics. The run's environment
+(determinism mode, threads, Numba, device) is set by ``ftgspp.runtime.enter``; a run whose
+determinism mode or kernel dispatch this process cannot have trains in a child process
+(``ftgspp.runtime.child``, started as ``python -m ftgspp.trainer CONFIG``).
 
 Run it from the command line with ``ftgspp train [overrides]``; call ``train`` directly
 in Python (the tests do).
@@ -112,11 +115,10 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     env = enter(cfg)
     (out_dir / "determinism.json").write_text(json.dumps(env.domain, indent=2))
     tracker.set_tags({f"determinism.{k}": v for k, v in env.domain.items()})
-    device = env.device
     torch.manual_seed(cfg.seed)
 
-    state = TrainState.create(cfg, scene, device)
-    lpips_net = _lpips_loss_net(cfg, device)
+    state = TrainState.create(cfg, scene, env.device)
+    lpips_net = _lpips_loss_net(cfg, env.device)
     ckpt = out_dir / CHECKPOINT
     if cfg.resume and ckpt.exists() and state.load(ckpt):
         log.info("resumed from %s at iteration %d", ckpt, state.step)
