@@ -115,13 +115,14 @@ def test_a_portable_run_from_a_default_process_trains_in_a_pinned_child(tiny_sce
     assert "init:" in child_output and child_output in capsys.readouterr().err  # streamed as it came
 
 
-def test_a_failing_child_shows_its_output_and_its_last_line_in_the_error(tiny_scene, tmp_path, capsys):
+def test_a_failing_child_shows_its_output_and_its_last_line_in_the_error(tiny_scene_dir, tiny_scene, tmp_path,
+                                                                          capsys):
     from test_trainer import small_cfg
 
     from ftgspp.trainer import train
 
-    cfg = small_cfg(tmp_path / "no_scene", tmp_path / "run", dispatch="baseline")  # the child cannot load it
-    with pytest.raises(RuntimeError, match="failed in its child process: .*no_scene"):
+    cfg = small_cfg(tiny_scene_dir, tmp_path / "run", dispatch="baseline", background=[0.0])  # fails to render
+    with pytest.raises(RuntimeError, match="failed in its child process: .*background must have shape"):
         train(cfg, tiny_scene)
     child_output = (tmp_path / "run" / "dispatch_child.log").read_text()
     assert "Traceback" in child_output and child_output in capsys.readouterr().err
@@ -156,6 +157,18 @@ def test_a_dispatch_run_trains_in_a_child_with_that_kernel_set(tiny_scene_dir, t
     assert any("loss" in m for _, m in rec.metrics) and any(where == "renders" for _, where in rec.artifacts)
     a, b = params(tmp_path / "native"), params(tmp_path / "baseline")
     assert not same_bits(a, b) and abs(other.metrics["psnr"] - native.metrics["psnr"]) < 0.5
+
+
+def test_an_input_error_in_the_child_is_raised_in_the_parent(tiny_scene_dir, tiny_scene, tmp_path):
+    from test_trainer import small_cfg
+
+    from ftgspp.errors import InputError
+    from ftgspp.trainer import train
+
+    cfg = small_cfg(tiny_scene_dir, tmp_path, determinism="portable")
+    cfg.strategy.relocation = "teleport"  # rejected when the child builds its training state
+    with pytest.raises(InputError, match="relocation"):
+        train(cfg, tiny_scene)
 
 
 @pytest.mark.parametrize("over, key", [({"dispatch": "sse9"}, "dispatch"),

@@ -12,7 +12,8 @@ and the parent collects its metrics, loss curve, artifacts and determinism domai
   hardware share of run-to-run variance (secret 5). ``native`` is this machine's best.
 
 The child's output (progress bar, log lines, errors) is copied to the parent's stderr as it
-comes and to ``OUT_DIR/dispatch_child.log``; a failed child's last line is in the parent's error.
+comes and to ``OUT_DIR/dispatch_child.log``; a failed child's last line is in the parent's error,
+and an ``InputError`` in the child is raised again in the parent.
 
     python -m ftgspp.trainer OUT_DIR/dispatch_config.json   # what the parent starts (child_main)
 
@@ -85,13 +86,16 @@ def train_in_child(cfg: TrainConfig, tracker: Tracker) -> RunResult:
     config_file.write_text(json.dumps({"config": asdict(cfg)}, indent=2))
     if os.environ.get(CHILD):
         raise RuntimeError("a training child process did not get the environment its run needs")
+    result_file = out_dir / "dispatch_result.json"
+    result_file.unlink(missing_ok=True)  # an earlier child's, in a resumed run's folder
     code, last = _run_streamed([sys.executable, "-m", "ftgspp.trainer", str(config_file)], child_environment(cfg),
                                out_dir / "dispatch_child.log")
-    result_file = out_dir / "dispatch_result.json"
-    if code != 0 or not result_file.exists():
+    blob = json.loads(result_file.read_text()) if result_file.exists() else {}
+    if "input_error" in blob:  # the child's one-line error is this process's
+        raise InputError(**blob["input_error"])
+    if code != 0 or not blob:
         raise RuntimeError(f"training (determinism={cfg.determinism}, dispatch={cfg.dispatch}) failed in its "
                            f"child process: {last}")
-    blob = json.loads(result_file.read_text())
     for step, values in blob["curve"]:
         tracker.log_metrics(values, step=step)
     tracker.set_tags({f"determinism.{k}": v for k, v in blob["domain"].items()})
@@ -153,10 +157,15 @@ def child_main(config_file: Path, train: Callable[..., RunResult]) -> int:
     package_log.setLevel(logging.INFO)
     blob = json.loads(config_file.read_text())
     cfg = train_config_from_dict(blob["config"])
+    result_file = Path(cfg.out_dir) / "dispatch_result.json"
     recorder = _Recorder()
-    result = train(cfg, load_scene(cfg.data), recorder)
+    try:
+        result = train(cfg, load_scene(cfg.data), recorder)
+    except InputError as err:  # raised again in the parent, as one line
+        result_file.write_text(json.dumps({"input_error": {"where": err.where, "problem": err.problem}}))
+        return 2
     domain = json.loads((Path(cfg.out_dir) / "determinism.json").read_text())
-    (Path(cfg.out_dir) / "dispatch_result.json").write_text(json.dumps({
+    result_file.write_text(json.dumps({
         "status": result.status, "failure": result.failure, "metrics": result.metrics, "curve": recorder.curve,
         "domain": domain, "artifacts": recorder.artifacts}))
     return 0
