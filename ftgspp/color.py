@@ -2,7 +2,7 @@
 
 For training camera c the render I is mapped to ``I (I3 + ΔM_c) + b_c``; ΔM and b start
 at zero (the identity), are switched on at ``cc_start_iter`` and are pulled back towards
-the identity by ``cc_reg · Σ(‖ΔM‖² + ‖b‖²)``. Evaluation renders never go through it.
+the identity by ``loss.cc_reg · Σ(‖ΔM‖² + ‖b‖²)``. Evaluation renders never go through it.
 """
 
 from __future__ import annotations

@@ -37,7 +37,6 @@ class ModelConfig:
     gate_init: float = -1.0
     color_correction: bool = False
     cc_start_iter: int = 3_000
-    cc_reg: float = 1e-3
 
 
 @dataclass
@@ -98,6 +97,18 @@ class LearningRates:
 
 
 @dataclass
+class LossConfig:
+    """Weights of the training loss terms (DESIGN.md section 4, ``trainer.loss_terms``)."""
+
+    ssim: float = 0.2  # λ in the photometric term (1 − λ) L1 + λ (1 − SSIM)
+    lpips: float = 0.0  # LPIPS-Alex; 0.01 on GPU profiles
+    opacity_reg: float = 0.01  # FreeTimeGS 4D regulariser
+    scale_reg: float = 0.01
+    gate_reg: float = 1e-3  # with ModelConfig.gate
+    cc_reg: float = 1e-3  # with ModelConfig.color_correction
+
+
+@dataclass
 class TrackingConfig:
     """Where runs are recorded (used by the harness; the library only sees a Tracker)."""
 
@@ -114,6 +125,7 @@ class TrainConfig:
     init: InitConfig = field(default_factory=InitConfig)
     strategy: StrategyConfig = field(default_factory=StrategyConfig)
     lr: LearningRates = field(default_factory=LearningRates)
+    loss: LossConfig = field(default_factory=LossConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     profile: str = "quick"
     seed: int = 0
@@ -122,19 +134,13 @@ class TrainConfig:
     backend: str = "auto"  # auto | reference | cpu | gsplat
     device: str = "auto"  # auto | cpu | cuda
     threads: int = 0  # torch threads; 0 = leave as is (portable mode: 1)
-    determinism: str = "default"  # default | portable (same bits on any x86-64; ftgspp/determinism.py)
+    determinism: str = "default"  # default | portable (same bits on any x86-64; ftgspp/runtime/determinism.py)
     dispatch: str = "native"  # torch CPU kernels as on another CPU: native | avx512 | avx2 | baseline
-    ssim_weight: float = 0.2
-    lpips_weight: float = 0.0  # 0.01 on GPU profiles
-    opacity_reg: float = 0.01  # FreeTimeGS 4D regulariser
-    scale_reg: float = 0.01
-    gate_reg: float = 1e-3
     sh_degree_interval: int = 1_000
     background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     random_background: bool = False
     log_every: int = 50
     checkpoint_every: int = 1_000
-    eval_every: int = 0  # 0 = only at the end
     diagnostics: bool = True  # lifetime / velocity / x-t / motion-error plots after evaluation
     # LPIPS networks scored at evaluation (both input conventions each); VGG16 costs ~10x AlexNet
     eval_lpips: list[str] = field(default_factory=lambda: ["alex", "vgg"])

@@ -1,7 +1,7 @@
 """Colour coding of flow fields for the diagnostics (no plotting, no model code).
 
-Shared by ``ftgspp.diagnostics`` (which re-exports it) and ``ftgspp.diagnostics_plots``;
-it imports neither, so the two never import each other in a loop.
+Used by ``ftgspp.diagnostics_plots`` (and the tests); it imports no other diagnostics
+module.
 """
 
 from __future__ import annotations

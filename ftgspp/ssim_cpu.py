@@ -27,13 +27,12 @@ import torch
 from numba import njit, prange
 from torch import Tensor
 
-from ftgspp.render import cpu as _cpu  # noqa: F401  (chooses the Numba threading layer first)
+from ftgspp.runtime.jit import JIT, configure_numba
 
-_JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
 RADIUS = 5  # 11 taps
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _filter_row(src, dst, taps, n_ch):
     """dst = taps (*) src along one row of W*C floats, zero padded, channel stride n_ch."""
     length = src.shape[0]
@@ -49,7 +48,7 @@ def _filter_row(src, dst, taps, n_ch):
             d[j] += w * s[j]
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _filter_column(src, r, height, taps, out):
     """out[q] = taps (*) src[q] down the image column at row r (zero padded at the image's
     top and bottom; rows of one image are consecutive, ``height`` of them). src [Q, rows, L]."""
@@ -67,7 +66,7 @@ def _filter_column(src, r, height, taps, out):
                 o[j] += w * s[j]
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, **JIT)
 def ssim_forward(
     x: np.ndarray,  # [B * H, W * C] float32
     y: np.ndarray,  # [B * H, W * C] float32
@@ -128,7 +127,7 @@ def ssim_forward(
     return row_sums, partials
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, **JIT)
 def ssim_backward(
     x: np.ndarray,  # [B * H, W * C] float32
     y: np.ndarray,  # [B * H, W * C] float32
@@ -199,4 +198,5 @@ def ssim_same_cpu(a: Tensor, b: Tensor, taps: np.ndarray, c1: float, c2: float) 
 
     ``taps`` [11] float32 is the normalised 1-D Gaussian; ``c1``, ``c2`` the SSIM constants.
     """
+    configure_numba()  # before the first parallel kernel fixes Numba's threading layer
     return _SSIMSame.apply(a.contiguous(), b.contiguous(), taps, c1, c2)

@@ -6,7 +6,10 @@ Gaussians at that frame's time, render, compute the loss of DESIGN.md section 4
 ``refine_every`` iterations relocate dead Gaussians. Everything the loop mutates lives in
 one ``TrainState`` (``ftgspp/train_state.py``); checkpoints go to
 ``<out_dir>/checkpoint.pt`` and a re-run with the same ``out_dir`` resumes from it.
-Evaluation on the held-out cameras ends the run.
+Evaluation on the held-out cameras ends the run, then the diagnostics. The run's environment
+(determinism mode, threads, Numba, device) is set by ``ftgspp.runtime.enter``; a run whose
+determinism mode or kernel dispatch this process cannot have trains in a child process
+(``ftgspp.runtime.child``, started as ``python -m ftgspp.trainer CONFIG``).
 
 Run it from the command line with ``ftgspp train [overrides]``; call ``train`` directly
 in Python (the tests do).
@@ -19,25 +22,23 @@ import logging
 import math
 import resource
 import time
-from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
 import torch
 from tqdm import tqdm
 
+from ftgspp.checkpoint import save_config, save_model
 from ftgspp.color import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
-from ftgspp.determinism import apply_runtime, determinism_domain
-from ftgspp.dispatch_run import check_dispatch, child_main, needs_child, train_in_child
-from ftgspp.errors import InputError
+from ftgspp.diagnostics import run_diagnostics
 from ftgspp.evaluate import check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
-from ftgspp.train_state import TrainState, set_learning_rates
+from ftgspp.runtime import enter, needs_child, train_in_child
 from ftgspp.tracker import NullTracker, RunResult, Tracker
+from ftgspp.train_state import TrainState, set_learning_rates
 from ftgspp.view import render_view
 
 log = logging.getLogger("ftgspp.train")
@@ -51,15 +52,6 @@ class Diverged(Exception):
     def __init__(self, step: int, seconds: float, loss: float) -> None:
         super().__init__(f"loss is {loss} at iteration {step}")
         self.step, self.seconds = step, seconds
-
-
-def pick_device(name: str) -> torch.device:
-    """``auto`` is CUDA when available, else CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise InputError("device", "cuda requested but no CUDA device is available")
-    return torch.device(name)
 
 
 def _peak_rss_mb() -> float:
@@ -77,25 +69,28 @@ def loss_terms(
 ) -> dict[str, torch.Tensor]:
     """The training loss of DESIGN.md section 4, term by term; ``"total"`` is their weighted sum.
 
-    total = photometric [(1 − λ) L1 + λ (1 − SSIM)] + lpips_weight · LPIPS-alex
+    With the weights of ``cfg.loss`` (λ = ``ssim``):
+
+    total = photometric [(1 − λ) L1 + λ (1 − SSIM)] + lpips · LPIPS-alex
             + opacity_reg · mean(σ(o) φ(t).detach()) + scale_reg · mean(exp S)
             [+ gate_reg · mean(1 − g)] [+ cc_reg · Σ(‖ΔM‖² + ‖b‖²)]
     """
-    photo, l1 = photometric(image, gt, cfg.ssim_weight)
+    w = cfg.loss
+    photo, l1 = photometric(image, gt, w.ssim)
     terms = {"photometric": photo, "l1": l1}
     total = photo
     if lpips_net is not None:  # LPIPS with the correct [-1, 1] inputs
         terms["lpips"] = lpips_distance(lpips_net, image.clamp(0, 1), gt)
-        total = total + cfg.lpips_weight * terms["lpips"]
+        total = total + w.lpips * terms["lpips"]
     terms["opacity"] = opacity_4d(model.base_opacity(), g.temporal)
     terms["scale"] = scale_penalty(model.params["scales"])
-    total = total + cfg.opacity_reg * terms["opacity"] + cfg.scale_reg * terms["scale"]
+    total = total + w.opacity_reg * terms["opacity"] + w.scale_reg * terms["scale"]
     if cfg.model.gate:
         terms["gate"] = gate_penalty(model.gate())
-        total = total + cfg.gate_reg * terms["gate"]
+        total = total + w.gate_reg * terms["gate"]
     if cc is not None:
         terms["cc"] = cc.regularizer()
-        total = total + cfg.model.cc_reg * terms["cc"]
+        total = total + w.cc_reg * terms["cc"]
     terms["total"] = total
     return terms
 
@@ -111,25 +106,19 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     Bad input (unknown policy, unavailable feature, bad scene) raises ``InputError``.
     """
     tracker = tracker or NullTracker()
-    check_dispatch(cfg)
     check_eval_lpips(cfg.eval_lpips)
     if needs_child(cfg):  # another determinism environment / kernel dispatch: train in a fresh process
         return train_in_child(cfg, tracker)
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "config.json").write_text(json.dumps(asdict(cfg), indent=2))
-    try:
-        apply_runtime(cfg.determinism, cfg.threads)
-    except (RuntimeError, ValueError) as err:
-        raise InputError("determinism", str(err)) from None
-    domain = determinism_domain(cfg.determinism, cfg.threads)
-    (out_dir / "determinism.json").write_text(json.dumps(domain, indent=2))
-    tracker.set_tags({f"determinism.{k}": v for k, v in domain.items()})
-    device = pick_device(cfg.device)
+    save_config(cfg, out_dir)
+    env = enter(cfg)
+    (out_dir / "determinism.json").write_text(json.dumps(env.domain, indent=2))
+    tracker.set_tags({f"determinism.{k}": v for k, v in env.domain.items()})
     torch.manual_seed(cfg.seed)
 
-    state = TrainState.create(cfg, scene, device)
-    lpips_net = _lpips_loss_net(cfg, device)
+    state = TrainState.create(cfg, scene, env.device)
+    lpips_net = _lpips_loss_net(cfg, env.device)
     ckpt = out_dir / CHECKPOINT
     if cfg.resume and ckpt.exists() and state.load(ckpt):
         log.info("resumed from %s at iteration %d", ckpt, state.step)
@@ -145,7 +134,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     model, cc, elapsed = state.model, state.cc, state.elapsed
     # Order matters: the model, then the network-free metrics, are on disk before any
     # optional metric (LPIPS) or diagnostic runs, so none of those can lose the run.
-    _save_model(model, cc, out_dir)
+    save_model(model, cc, out_dir)
     metrics, artifacts = evaluate(model, scene, cfg, out_dir)
     metrics.update({
         "train_seconds": elapsed,
@@ -157,9 +146,10 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     metrics.update(evaluate_lpips(model, scene, cfg))
     _write_metrics(out_dir, metrics)
     diag_files: list[Path] = []
-    if cfg.diagnostics:
-        diag_metrics, diag_files = _diagnostics(model, scene, cfg, out_dir / "diagnostics")
-        metrics.update(diag_metrics)
+    if cfg.diagnostics:  # lifetime / velocity / x-t / motion-error plots and the numbers studies tabulate
+        diag = run_diagnostics(model, scene, cfg, out_dir / "diagnostics")
+        metrics.update(diag.metrics())
+        diag_files = list(diag.files.values())
     metrics["peak_rss_mb"] = _peak_rss_mb()  # now including evaluation and diagnostics
     _write_metrics(out_dir, metrics)
     tracker.log_metrics(metrics)
@@ -170,40 +160,13 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     return RunResult(status="FINISHED", metrics=metrics, out_dir=out_dir, artifacts=artifacts)
 
 
-def _save_model(model: FreeTimeGaussians, cc: ColorCorrection | None, out_dir: Path) -> None:
-    """``gaussians.pt`` (activated-free raw parameters) and the learned colour transforms."""
-    torch.save({k: v.detach().cpu() for k, v in model.params.items()}, out_dir / "gaussians.pt")
-    if cc is not None:
-        np.save(out_dir / "color_correction.npy", cc.matrices().cpu().numpy())
-        np.save(out_dir / "color_bias.npy", cc.bias.detach().cpu().numpy())
-
-
 def _write_metrics(out_dir: Path, metrics: dict[str, float]) -> None:
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
 
 
-def _diagnostics(model, scene, cfg, out_dir: Path) -> tuple[dict[str, float], list[Path]]:
-    """Diagnostic plots of the trained model and the numbers studies tabulate."""
-    from ftgspp.diagnostics import run_diagnostics
-
-    d = run_diagnostics(model, scene, cfg, out_dir)
-    life = d.get("lifetime", {})
-    numbers = {
-        "lifetime_long_on_static": life.get("long_lived_on_static"),
-        "lifetime_short_on_dynamic": life.get("short_lived_on_dynamic"),
-        "lifetime_median_fraction": life.get("median_fraction"),
-        "motion_epe_dynamic": d.get("motion", {}).get("epe_dynamic"),
-        "motion_leak_static": d.get("motion", {}).get("leak_static"),
-        "xt_slice_mae": d.get("xt_slice_mae"),
-        **d.get("scores", {}),  # ground-truth scores for the claims (scenes with a gt/ folder)
-    }
-    files = [Path(f) for f in d.get("files", {}).values()] + [out_dir / "diagnostics.json"]
-    return {k: float(v) for k, v in numbers.items() if v is not None}, files
-
-
 def _lpips_loss_net(cfg: TrainConfig, device: torch.device) -> torch.nn.Module | None:
     """LPIPS-Alex for the optional perceptual loss term (GPU profiles); None when its weight is 0."""
-    if cfg.lpips_weight <= 0:
+    if cfg.loss.lpips <= 0:
         return None
     from ftgspp.lpips import load_lpips
 
@@ -262,7 +225,9 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
     st.save(out_dir / CHECKPOINT)
 
 
-if __name__ == "__main__":  # a child started by ftgspp.dispatch_run.train_in_child
+if __name__ == "__main__":  # a child started by ftgspp.runtime.child.train_in_child
     import sys
+
+    from ftgspp.runtime.child import child_main
 
     raise SystemExit(child_main(Path(sys.argv[1]), train))

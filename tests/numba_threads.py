@@ -6,11 +6,14 @@ from typing import Callable, TypeVar
 
 import numba
 
+from ftgspp.runtime.jit import configure_numba
+
 T = TypeVar("T")
 
 
 def under_thread_counts(fn: Callable[[], T]) -> list[T]:
     """``fn()`` with 1 thread, then 2 (twice, for run-to-run repeatability) where available."""
+    configure_numba()  # as the kernels' entry points do, before Numba starts its threads
     threads = [1, 2] if numba.config.NUMBA_NUM_THREADS >= 2 else [1]
     before = numba.get_num_threads()
     results = []

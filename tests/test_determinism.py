@@ -2,7 +2,8 @@
 other x86-64 machines; the default mode is shown to depend on them (so the test can fail).
 
 Each run is a fresh ``ftgspp train`` process (the environment is read when torch, NumPy,
-OpenCV and oneDNN load), smoke profile on the tiny scene, diagnostics off.
+OpenCV and oneDNN load), smoke profile on the tiny scene, diagnostics off; a portable run
+trains in a child process with the portable environment, whose output the command shows.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import pytest
 import torch
 from test_trainer import params
 
-from ftgspp.determinism import determinism_domain, isa_class, portable_environment, requested_mode
+from ftgspp.runtime.determinism import determinism_domain, isa_class, portable_environment
 
 # Outer environments that mimic other machines: torch kernel dispatch, oneDNN ISA caps, no
 # AVX-512/AVX2 in NumPy and OpenCV, thread counts, Numba kernels compiled for the baseline ISA.
@@ -40,6 +41,9 @@ def train_in(env_extra: dict[str, str], mode: str, scene: Path, out: Path) -> tu
                         "progress=false", "init.keyframe_stride=3", "diagnostics=false", f"determinism={mode}",
                         f"hydra.run.dir={out}"], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
+    if mode == "portable":  # trained in a child process: its output reached the command's stderr
+        child_output = (out / "dispatch_child.log").read_text()
+        assert "init:" in child_output and child_output in r.stderr
     params = torch.load(out / "gaussians.pt", weights_only=True)
     metrics = {k: v for k, v in json.loads((out / "metrics.json").read_text()).items() if k not in TIMING}
     return params, metrics, json.loads((out / "determinism.json").read_text())
@@ -93,12 +97,10 @@ def test_domain_records_what_the_bits_depend_on():
     assert "torch 2.13.0" in d["versions"] and "numba" in d["versions"] and "opencv" in d["versions"]
     assert isa_class({"avx512f", "avx512bw", "avx512cd", "avx512dq", "avx512vl", "avx2", "fma"}) == "x86-64-v4"
     assert isa_class({"avx2", "fma", "bmi2", "movbe", "sse4_2"}) == "x86-64-v3"
-    assert requested_mode(["profile=smoke", "determinism=portable"]) == "portable"
-    assert requested_mode(["profile=smoke"]) is None
 
 
 def test_a_portable_run_from_a_default_process_trains_in_a_pinned_child(tiny_scene_dir, tiny_scene, tmp_path,
-                                                                         monkeypatch):
+                                                                         monkeypatch, capsys):
     from test_trainer import small_cfg
 
     from ftgspp.trainer import train
@@ -109,6 +111,21 @@ def test_a_portable_run_from_a_default_process_trains_in_a_pinned_child(tiny_sce
     domain = json.loads((tmp_path / "determinism.json").read_text())
     assert result.status == "FINISHED" and domain["mode"] == "portable"
     assert domain["torch_cpu_capability"] == "DEFAULT" and domain["onednn"] == "off"
+    child_output = (tmp_path / "dispatch_child.log").read_text()
+    assert "init:" in child_output and child_output in capsys.readouterr().err  # streamed as it came
+
+
+def test_a_failing_child_shows_its_output_and_its_last_line_in_the_error(tiny_scene_dir, tiny_scene, tmp_path,
+                                                                          capsys):
+    from test_trainer import small_cfg
+
+    from ftgspp.trainer import train
+
+    cfg = small_cfg(tiny_scene_dir, tmp_path / "run", dispatch="baseline", background=[0.0])  # fails to render
+    with pytest.raises(RuntimeError, match="failed in its child process: .*background must have shape"):
+        train(cfg, tiny_scene)
+    child_output = (tmp_path / "run" / "dispatch_child.log").read_text()
+    assert "Traceback" in child_output and child_output in capsys.readouterr().err
 
 
 def test_a_dispatch_run_trains_in_a_child_with_that_kernel_set(tiny_scene_dir, tiny_scene, tmp_path):
@@ -140,6 +157,18 @@ def test_a_dispatch_run_trains_in_a_child_with_that_kernel_set(tiny_scene_dir, t
     assert any("loss" in m for _, m in rec.metrics) and any(where == "renders" for _, where in rec.artifacts)
     a, b = params(tmp_path / "native"), params(tmp_path / "baseline")
     assert not same_bits(a, b) and abs(other.metrics["psnr"] - native.metrics["psnr"]) < 0.5
+
+
+def test_an_input_error_in_the_child_is_raised_in_the_parent(tiny_scene_dir, tiny_scene, tmp_path):
+    from test_trainer import small_cfg
+
+    from ftgspp.errors import InputError
+    from ftgspp.trainer import train
+
+    cfg = small_cfg(tiny_scene_dir, tmp_path, determinism="portable")
+    cfg.strategy.relocation = "teleport"  # rejected when the child builds its training state
+    with pytest.raises(InputError, match="relocation"):
+        train(cfg, tiny_scene)
 
 
 @pytest.mark.parametrize("over, key", [({"dispatch": "sse9"}, "dispatch"),

@@ -20,10 +20,10 @@ from scipy.optimize import brentq
 
 from ftgspp.config import InitConfig, ModelConfig, TrainConfig
 from ftgspp.data.scene import Camera, Scene
-from ftgspp.diagnostics import (
-    color_wheel, composite, flow_to_rgb, lifetime_fractions, lifetime_histogram, motion_error,
-    pixel_velocities, run_diagnostics, subset_model, velocity_map, xt_slice,
-)  # fmt: skip
+from ftgspp.diagnostics import run_diagnostics
+from ftgspp.diagnostics_colors import color_wheel, flow_to_rgb
+from ftgspp.diagnostics_lifetimes import lifetime_fractions, lifetime_histogram, subset_model
+from ftgspp.diagnostics_motion import composite, motion_error, pixel_velocities, velocity_map, xt_slice
 from ftgspp.model import FreeTimeGaussians, duration_to_param
 
 W, H, FOCAL = 64, 48, 60.0
@@ -260,8 +260,8 @@ def test_run_diagnostics_writes_readable_outputs(tmp_path):
     cfg.model.sh_degree = 0
     res = run_diagnostics(model, scene, cfg, tmp_path / "diag", frame=1)
     names = {"lifetime_histogram", "lifetime_groups", "velocity_map", "xt_slice", "motion_error", "json"}
-    assert set(res["files"]) == names
-    for path in res["files"].values():
+    assert set(res.files) == names
+    for path in res.files.values():
         assert Path(path).is_file() and Path(path).stat().st_size > 1000
     saved = json.loads((tmp_path / "diag" / "diagnostics.json").read_text())
     assert saved["lifetime"]["n_short_lived"] == int(is_obj.sum())

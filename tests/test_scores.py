@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from test_diagnostics import camera, object_masks, wall_and_object
 
-from ftgspp.diagnostics import composite, mask_weights, partition_scores, role_switch_score, static_flicker
+from ftgspp.diagnostics_lifetimes import mask_weights, partition_scores, role_switch_score
+from ftgspp.diagnostics_motion import composite, static_flicker
 
 
 def test_partition_scores_by_hand():

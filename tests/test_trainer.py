@@ -153,8 +153,9 @@ def test_cli_bad_input_is_one_line_and_exit_2(args, key, tiny_scene_dir, tmp_pat
 
 def test_lpips_training_loss_changes_the_optimisation(tiny_scene_dir, tiny_scene, tmp_path, lpips_weights):
     plain = train(small_cfg(tiny_scene_dir, tmp_path / "plain", iterations=10, diagnostics=False), tiny_scene)
-    with_lpips = train(small_cfg(tiny_scene_dir, tmp_path / "lpips", iterations=10, diagnostics=False,
-                                 lpips_weight=0.01), tiny_scene)
+    cfg = small_cfg(tiny_scene_dir, tmp_path / "lpips", iterations=10, diagnostics=False)
+    cfg.loss.lpips = 0.01
+    with_lpips = train(cfg, tiny_scene)
     assert plain.status == with_lpips.status == "FINISHED"
     a, b = params(tmp_path / "plain"), params(tmp_path / "lpips")
     assert not torch.equal(a["sh0"], b["sh0"])  # the perceptual term moved the colours differently

@@ -20,10 +20,10 @@ from test_trainer import params, small_cfg
 
 import ftgspp.trainer as trainer
 from ftgspp.color import ColorCorrection
-from ftgspp.config import DataConfig
-from ftgspp.errors import InputError
+from ftgspp.config import DataConfig, LossConfig
 from ftgspp.data.load import load_scene
 from ftgspp.data.synthetic import generate
+from ftgspp.errors import InputError
 from ftgspp.evaluate import evaluate
 from ftgspp.metrics import lpips_distance, ssim_same
 from ftgspp.model import FreeTimeGaussians
@@ -170,7 +170,7 @@ def test_the_trained_run_used_the_decayed_rates(tiny_scene_dir, tiny_scene, tmp_
 def test_loss_terms_and_weights(tiny_scene_dir):
     cfg = small_cfg(tiny_scene_dir, ".")
     cfg.model.gate, cfg.model.max_duration = True, 1.0
-    cfg.ssim_weight, cfg.opacity_reg, cfg.scale_reg, cfg.gate_reg, cfg.model.cc_reg = 0.2, 0.03, 0.05, 0.007, 0.02
+    cfg.loss = LossConfig(ssim=0.2, opacity_reg=0.03, scale_reg=0.05, gate_reg=0.007, cc_reg=0.02)
     n = 6
     gen = torch.Generator().manual_seed(0)
     model = FreeTimeGaussians.from_points(torch.rand(n, 3, generator=gen).numpy(), np.full((n, 3), 0.5),

@@ -9,9 +9,10 @@ for any Numba thread count (``numba.set_num_threads``).
     from ftgspp.render.cpu import rasterize
     image, alpha, depth = rasterize(means2d, conics, colors, opacities, depths, radii, W, H, bg)
 
-Threading: Numba's OpenMP layer is chosen when it loads (it starts a parallel region in a
-few microseconds; ``workqueue`` takes tens to hundreds); ``NUMBA_THREADING_LAYER`` overrides
-the choice. The OpenMP runtime is PyTorch's too, so ``NUMBA_NUM_THREADS=1`` also caps
+Threading: ``rasterize`` calls ``ftgspp.runtime.jit.configure_numba()`` before its first
+parallel kernel, which picks Numba's OpenMP layer (it starts a parallel region in a few
+microseconds; ``workqueue`` takes tens to hundreds); ``NUMBA_THREADING_LAYER`` overrides the
+choice. The OpenMP runtime is PyTorch's too, so ``NUMBA_NUM_THREADS=1`` also caps
 PyTorch at one thread (``numba.set_num_threads`` does not). Like PyTorch's own OpenMP
 parallelism it is not fork-safe: a process forked after parallel work hangs or aborts in its
 next parallel region, so start worker processes with ``spawn`` (or as subprocesses).
@@ -24,30 +25,13 @@ fast as one that loaded it (``_TILE_JIT`` in ``cpu_kernels``).
 
 from __future__ import annotations
 
-import importlib
-import os
-
 import numba
 import numpy as np
 import torch
 from torch import Tensor
 
-
-def _choose_threading_layer() -> str:
-    """Prefer OpenMP when Numba can load it and nobody chose a layer."""
-    if os.environ.get("NUMBA_THREADING_LAYER") or numba.config.THREADING_LAYER != "default":
-        return numba.config.THREADING_LAYER
-    try:
-        importlib.import_module("numba.np.ufunc.omppool")
-    except ImportError:  # no OpenMP runtime: Numba's own search (tbb, omp, workqueue)
-        return numba.config.THREADING_LAYER
-    numba.config.THREADING_LAYER = "omp"
-    return "omp"
-
-
-THREADING_LAYER_REQUESTED = _choose_threading_layer()
-
-from ftgspp.render import cpu_kernels as _k  # noqa: E402  (after choosing the layer)
+from ftgspp.render import cpu_kernels as _k
+from ftgspp.runtime.jit import configure_numba
 
 
 def threading_layer() -> str:
@@ -55,7 +39,7 @@ def threading_layer() -> str:
     try:
         return numba.threading_layer()
     except ValueError:
-        return f"not started (requested {THREADING_LAYER_REQUESTED})"
+        return f"not started (requested {numba.config.THREADING_LAYER})"
 
 
 def depth_sort_keys(depths: np.ndarray) -> np.ndarray:
@@ -146,6 +130,7 @@ def rasterize(
     background: Tensor | None = None,  # [D]
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Composite projected Gaussians -> (image [H, W, D], alpha [H, W, 1], depth [H, W, 1])."""
+    configure_numba()  # before the first parallel kernel fixes Numba's threading layer
     n = means2d.shape[0]
     if colors.dim() != 2 or colors.shape[0] != n:
         raise ValueError(f"colors must be [N={n}, D], got {tuple(colors.shape)}")

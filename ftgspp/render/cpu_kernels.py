@@ -45,6 +45,7 @@ import numpy as np
 from numba import njit, prange
 
 from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
+from ftgspp.runtime.jit import JIT
 
 F0 = np.float32(0.0)
 F1 = np.float32(1.0)
@@ -74,7 +75,6 @@ MAX_TILE_LIST = 1 << 24  # Gaussians per tile: slots are kept in float32 tile st
 # Columns of the per-pair gradient rows.
 G_MX, G_MY, G_A, G_B, G_C, G_O, G_Z, G_COL = 0, 1, 2, 3, 4, 5, 6, 7
 
-_JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
 # The per-tile kernels are inlined into their parallel kernels (``_TILE_JIT``), never compiled
 # on their own. As ordinary callees, Numba compiled them twice: standalone, and as a copy
 # linked into ``render_forward`` / ``render_backward``. A process loading the cache runs the
@@ -82,7 +82,7 @@ _JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
 # standalone copy (the first definition of the symbol), whose machine code was much slower
 # (why inside LLVM was not isolated): that process ran the rasterizer 5-6x slower, forward
 # plus backward (``ftgspp bench render`` times both kinds of process).
-_TILE_JIT = dict(inline="always", **_JIT)
+_TILE_JIT = dict(inline="always", **JIT)
 
 # exp on [-8, 0]: Cephes' expf polynomial after power = n ln2 + r, |r| <= ln2 / 2.
 _LOG2E = np.float32(1.44269504088896341)
@@ -120,7 +120,7 @@ class Forward(NamedTuple):
     tile_work: np.ndarray  # [n_tiles] float64, the backward pass's estimated work per tile
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def exp_clamped(power):
     """exp(power) for float32 ``power`` in [-8, 0], within 1 ulp; exp(-8) below, 1 above.
 
@@ -148,7 +148,7 @@ def exp_clamped(power):
 # ------------------------------------------------------------------------------ binning
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, **JIT)
 def bin_gaussians(
     means2d: np.ndarray,  # [N, 2] float32
     conics: np.ndarray,  # [N, 3] float32
@@ -228,7 +228,7 @@ def bin_gaussians(
     return Binning(offsets, pair_gauss, span, tile_cost, rect, gauss_off)
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def balance_tiles(tile_cost: np.ndarray, n_workers: int):
     """Deal tiles to ``n_workers`` lists, costliest first, each to the least loaded list.
 
@@ -267,7 +267,7 @@ def balance_tiles(tile_cost: np.ndarray, n_workers: int):
     return worker_offsets, worker_tiles
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _row_range(span: np.ndarray, g: int, y0: int, y1: int):
     """Rows [r0, r1) of the tile rows [y0, y1) that may hold pixels of Gaussian g."""
     if span[g, S_FULL] != 0.0:
@@ -281,7 +281,7 @@ def _row_range(span: np.ndarray, g: int, y0: int, y1: int):
     return np.int64(r0), np.int64(r1) + 1
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _misses_columns(span: np.ndarray, g: int, x0: int, x1: int) -> bool:
     """Whether Gaussian g's ellipse lies outside the columns [x0, x1) altogether."""
     if span[g, S_FULL] != 0.0:
@@ -307,7 +307,7 @@ _F_ACC = 7  # accumulated colour, one row per channel
 _F_ACC0, _F_ACC1, _F_ACC2 = np.uint64(7 * NP), np.uint64(8 * NP), np.uint64(9 * NP)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **JIT)
 def _forward_step(t, dx, dy, nh_a, nh_c, cb, op):
     """One Gaussian on one pixel of transmittance ``t`` (0: stopped) at offset (dx, dy).
 
@@ -324,7 +324,7 @@ def _forward_step(t, dx, dy, nh_a, nh_c, cb, op):
     return w, t_new, stop, use
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **JIT)
 def _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot):
     """``_forward_step`` on pixel ``p`` of the tile state: updates its transmittance, stop
     record and depth; returns the weight and whether the Gaussian stopped or contributed."""
@@ -446,7 +446,7 @@ def _forward_tile(
     return rows
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, **JIT)
 def render_forward(
     means2d: np.ndarray,  # [N, 2] float32
     conics: np.ndarray,  # [N, 3] float32
@@ -506,7 +506,7 @@ N_TERMS = 7
 _L = tuple(np.uint64(k * TS) for k in range(N_TERMS + 3))
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **JIT)
 def _backward_step(t_after, rest, dx, dy, dot, before_stop, nh_a, nh_c, cb, op):
     """The forward step recomputed on one pixel, walking back (same code, same bits).
 
@@ -530,7 +530,7 @@ def _backward_step(t_after, rest, dx, dy, dot, before_stop, nh_a, nh_c, cb, op):
     return live, w, t_new, rest_new, d_power, d_opacity
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **JIT)
 def _backward_pixel(st, lanes, p, j, gz, dot, mx, my, nh_a, nh_c, cb, op, f_slot):
     """``_backward_step`` on pixel ``p`` (column ``j``) of the tile state: updates its
     transmittance and rest, adds its moment terms to column ``j`` of the per-column sums;
@@ -677,7 +677,7 @@ def _backward_tile(
             out[G_COL + ch] = sums[N_TERMS + ch]
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, **JIT)
 def render_backward(
     means2d: np.ndarray,  # [N, 2] float32
     conics: np.ndarray,  # [N, 3] float32
@@ -713,7 +713,7 @@ def render_backward(
     return pair_grads, bg_grads
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, **JIT)
 def reduce_pair_grads(pair_grads: np.ndarray, gauss_off: np.ndarray, gauss_pairs: np.ndarray, bg_grads: np.ndarray):
     """Sum each Gaussian's gradient rows in the raster order of its tiles (deterministic).
 

@@ -23,9 +23,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ftgspp.render import prepare_kernels as _pk  # noqa: I001
+from ftgspp.render import prepare_kernels as _pk
 from ftgspp.render.contract import EPS2D
-from ftgspp.render.cpu import f32_array  # imported first: it chooses the Numba threading layer
+from ftgspp.render.cpu import f32_array
+from ftgspp.runtime.jit import configure_numba
 
 # Model parameters the kernel reads, in kernel argument order.
 PARAM_NAMES = ("means", "velocities", "times", "durations", "scales", "quats", "opacities", "gates", "sh0", "shN")
@@ -112,6 +113,7 @@ def prepare(
     eps2d: float = EPS2D,
 ) -> Prepared:
     """Evaluate, colour and project every Gaussian at time ``t`` (see the module docstring)."""
+    configure_numba()  # before the first parallel kernel fixes Numba's threading layer
     n_bases = (sh_degree + 1) ** 2
     if not 0 <= sh_degree <= 3:
         raise ValueError(f"SH degree must be in [0, 3], got {sh_degree}")

@@ -26,8 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from ftgspp.render.sh import C0, C1, C2, C3
-
-_JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
+from ftgspp.runtime.jit import JIT
 
 F0 = np.float32(0.0)
 F1 = np.float32(1.0)
@@ -35,7 +34,6 @@ F2 = np.float32(2.0)
 F3 = np.float32(3.0)
 F4 = np.float32(4.0)
 F_HALF = np.float32(0.5)
-F_03 = np.float32(0.3)
 F_EPS_DIR = np.float32(1e-8)  # view.py: dirs / norm.clamp_min(1e-8)
 F_EPS_SH = np.float32(1e-12)  # sh.py: dirs / norm.clamp_min(1e-12)
 F_RADIUS_MAX = np.float32(1.0e6)
@@ -72,7 +70,7 @@ class Scratch(NamedTuple):
     gR: np.ndarray  # [3, 3]
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _scratch():
     f = np.float32
     return Scratch(
@@ -82,12 +80,12 @@ def _scratch():
     )  # fmt: skip
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _sigmoid(x):
     return F1 / (F1 + math.exp(-x))
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _temporal(t, mu_t, d, gate_logit, max_duration, gate_on, gate_gamma):
     """(dt, s, a, gate value, phi) at time t of a Gaussian with centre mu_t, duration
     parameter d and gate logit (float32 scalars, so that calls carry no arrays)."""
@@ -106,7 +104,7 @@ def _temporal(t, mu_t, d, gate_logit, max_duration, gate_on, gate_gamma):
     return dt, s, a, gv, phi
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _basis(degree, x, y, z, out):
     """Real SH basis (sh.py's order and constants) at the unit direction (x, y, z) into out."""
     out[0] = SC0
@@ -132,7 +130,7 @@ def _basis(degree, x, y, z, out):
         out[15] = SC3[6] * x * (xx - F3 * yy)
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _basis_grad(degree, x, y, z, gb):
     """Gradient of sum_k gb[k] Y_k(x, y, z) with respect to (x, y, z)."""
     gx = F0
@@ -168,14 +166,14 @@ def _basis_grad(degree, x, y, z, gb):
     return gx, gy, gz
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _normalise(x, y, z, eps):
     """(x, y, z) / max(|(x, y, z)|, eps) and that denominator."""
     n = max(np.float32(math.sqrt(x * x + y * y + z * z)), eps)
     return x / n, y / n, z / n, n
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _normalise_grad(ux, uy, uz, n, eps, gx, gy, gz):
     """Backward of u = v / max(|v|, eps) at v = n u: the cotangent of v."""
     if n > eps:
@@ -184,7 +182,7 @@ def _normalise_grad(ux, uy, uz, n, eps, gx, gy, gz):
     return gx / n, gy / n, gz / n
 
 
-@njit(**_JIT)
+@njit(**JIT)
 def _rotation(qw, qx, qy, qz, R):
     """Rotation matrix of the normalised quaternion (project.py's formula) into R [3, 3]."""
     R[0, 0] = F1 - F2 * (qy * qy + qz * qz)
@@ -198,7 +196,7 @@ def _rotation(qw, qx, qy, qz, R):
     R[2, 2] = F1 - F2 * (qx * qx + qy * qy)
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **JIT)
 def _mul3(A, B, out, a_t, b_t):
     """out = op(A) op(B) over the leading 3x3 blocks, op = transpose where a_t / b_t."""
     for r in range(3):
@@ -209,7 +207,7 @@ def _mul3(A, B, out, a_t, b_t):
             out[r, c] = acc
 
 
-@njit(inline="always", **_JIT)
+@njit(inline="always", **JIT)
 def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, cam, S):
     """Camera-space centre, clamped tangents, Jacobian and 2D covariance of Gaussian i.
 
@@ -260,7 +258,7 @@ def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, cam, S):
     return px, py, pz, z, u, v, u_c, v_c, a, b, c, qn
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, **JIT)
 def prepare_forward(
     t: np.float32,
     means: np.ndarray,  # [N, 3] float32
@@ -348,7 +346,7 @@ def prepare_forward(
     return means2d, conics, colors, opac, depths, radii, phis, means_t
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, **JIT)
 def prepare_backward(
     t: np.float32,
     means: np.ndarray,

@@ -28,10 +28,7 @@ commands:
 
 def _dispatch(cmd: str, args: list[str]) -> int:
     if cmd == "train":
-        from ftgspp.determinism import reexec_if_needed
         from harness.cli.train import main as train_main
-
-        reexec_if_needed([cmd, *args], "harness.cli.ftgspp_cmd")  # determinism=portable: pinned environment first
 
         return train_main(args)
     if cmd == "synth":

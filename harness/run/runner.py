@@ -73,7 +73,7 @@ def pending(existing: list[RunRecord], planned: list[PlannedRun],
 def foreign_domain_notes(existing: list[RunRecord], planned: list[PlannedRun]) -> list[str]:
     """One line per finished run in ``existing`` that counts as done here although its bits come
     from another determinism domain than this machine would give it (or from no recorded one)."""
-    from ftgspp.determinism import expected_domain_id
+    from ftgspp.runtime.determinism import expected_domain_id
 
     by_key = {p.key: p for p in planned}
     expected: dict[tuple[str, int, str], str | None] = {}

@@ -15,7 +15,7 @@ import json
 from typing import Any
 
 from ftgspp.config import TrainConfig
-from ftgspp.determinism import effective_threads
+from ftgspp.runtime.determinism import effective_threads
 
 # Keys that never change what a run computes: output location, logging cadence,
 # tracking destination, caches. The thread count is NOT one of them: CPU reductions sum in

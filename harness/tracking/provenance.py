@@ -52,12 +52,15 @@ def trainer_fingerprint(root: Path = REPO) -> str:
 
 
 def resolve_device(device: str) -> str:
-    """``auto`` -> ``cuda`` when a GPU is visible, else ``cpu``; anything else unchanged."""
-    if device != "auto":
-        return device
-    import torch
+    """The device a run on ``device`` trains on (``ftgspp.runtime.device``); unchanged when the
+    trainer will refuse it (it reports that error itself)."""
+    from ftgspp.errors import InputError
+    from ftgspp.runtime.device import resolve_device as resolve
 
-    return "cuda" if torch.cuda.is_available() else "cpu"
+    try:
+        return str(resolve(device))
+    except InputError:
+        return device
 
 
 def resolve_backend(backend: str, device: str) -> str:

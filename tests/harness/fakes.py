@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from ftgspp.config import TrainConfig
-from ftgspp.determinism import determinism_domain
+from ftgspp.runtime.determinism import determinism_domain
 from ftgspp.strategy import Relocator
 from ftgspp.tracker import RunResult, Tracker
 

@@ -25,9 +25,9 @@ Two modes (``TrainConfig.determinism``):
   ``tests/test_determinism.py`` checks this with kernels compiled for the baseline.
 
 Environment variables are read when the libraries load, so the portable environment must
-exist before Python imports torch: ``ftgspp train determinism=portable`` re-executes itself
-with it (``reexec_if_needed``), and ``train()`` called in a process without it trains in a
-child process that has it (``ftgspp.dispatch_run``).
+exist before Python imports torch: ``train()`` called in a process without it (``ftgspp
+train determinism=portable`` included) trains in a child process that has it
+(``ftgspp.runtime.child``).
 
     env = portable_environment(os.environ)      # for a subprocess
     domain = determinism_domain("portable")      # what to record with a run
@@ -39,8 +39,7 @@ import hashlib
 import json
 import os
 import platform
-import sys
-from typing import Mapping, Sequence
+from typing import Mapping
 
 MODES = ("default", "portable")
 MARKER = "FTGSPP_DETERMINISM"  # set to "portable" in a process started with the portable environment
@@ -94,26 +93,6 @@ def portable_env_active() -> bool:
     return torch.backends.cpu.get_cpu_capability() == "DEFAULT"
 
 
-def requested_mode(argv: Sequence[str]) -> str | None:
-    """``portable``/``default`` if the command line asks for it (``determinism=...``), else None."""
-    for arg in argv:
-        key, _, value = arg.lstrip("+").partition("=")
-        if key == "determinism" and value:
-            return value
-    return None
-
-
-def reexec_if_needed(argv: Sequence[str], module: str, wanted: str | None = None) -> None:
-    """Re-execute ``python -m module argv`` with the portable environment if portable mode is
-    wanted (``wanted`` or ``determinism=portable`` in argv) and this process lacks it."""
-    mode = wanted or requested_mode(argv)
-    if mode != "portable" or os.environ.get(MARKER) == "portable":
-        return
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os.execve(sys.executable, [sys.executable, "-m", module, *argv], portable_environment(os.environ))
-
-
 def apply_runtime(mode: str, threads: int) -> int:
     """Settings made after import; returns the torch thread count the run uses.
 
@@ -127,9 +106,9 @@ def apply_runtime(mode: str, threads: int) -> int:
         raise ValueError(f"unknown determinism mode '{mode}' (choose from {', '.join(MODES)})")
     if mode == "portable":
         if not portable_env_active():
-            raise RuntimeError("determinism=portable needs its environment before torch starts: run it with "
-                               "`ftgspp train`/`study run` (they set it), or start Python with "
-                               "ftgspp.determinism.portable_environment(os.environ)")
+            raise RuntimeError("determinism=portable needs its environment before torch starts: train it with "
+                               "train() (it starts a child process that has it), or start Python with "
+                               "ftgspp.runtime.determinism.portable_environment(os.environ)")
         import cv2
 
         torch.backends.mkldnn.enabled = False

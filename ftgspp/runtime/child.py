@@ -1,23 +1,33 @@
-"""One training run in a fresh process when this process's environment is not the run's.
+"""One training run in a child process when this process's environment is not the run's.
 
 Kernel dispatch is fixed when the libraries load, so a run whose determinism settings
 differ from this process's trains in a child process started with the right environment,
 and the parent collects its metrics, loss curve, artifacts and determinism domain:
 
-- ``determinism=portable`` from a process without the portable environment (e.g. a
-  ``study run`` mixing modes, or ``train()`` called from Python);
+- ``determinism=portable`` from a process without the portable environment (``ftgspp train
+  determinism=portable``, a ``study run`` mixing modes, or ``train()`` called from Python);
 - ``determinism=default`` from a process that has it;
 - ``dispatch=avx512|avx2|baseline``: the same config, seed and initialisation trained as
   if on another CPU (torch's kernel set, ``ATEN_CPU_CAPABILITY``), which measures the
   hardware share of run-to-run variance (secret 5). ``native`` is this machine's best.
 
+The child's output (progress bar, log lines, errors) is copied to the parent's stderr as it
+comes and to ``OUT_DIR/dispatch_child.log``; a failed child's last line is in the parent's error,
+and an ``InputError`` in the child is raised again in the parent.
+
     python -m ftgspp.trainer OUT_DIR/dispatch_config.json   # what the parent starts (child_main)
+
+(The entry point is the trainer's ``__main__``: this module cannot import the trainer, which
+imports it.)
 """
 
 from __future__ import annotations
 
+import codecs
 import json
+import logging
 import os
+import re
 import subprocess
 import sys
 from dataclasses import asdict
@@ -25,8 +35,8 @@ from pathlib import Path
 from typing import Callable
 
 from ftgspp.config import TrainConfig, train_config_from_dict
-from ftgspp.determinism import MARKER, PORTABLE_FIXED, portable_environment
 from ftgspp.errors import InputError
+from ftgspp.runtime.determinism import MARKER, PORTABLE_FIXED, portable_environment
 from ftgspp.tracker import RunResult, Tracker
 
 DISPATCHES = {"native": None, "avx512": "avx512", "avx2": "avx2", "baseline": "default"}
@@ -34,7 +44,9 @@ CHILD = "FTGSPP_RUN_CHILD"  # set in a child, so a mismatch there is an error, n
 
 
 def needs_child(cfg: TrainConfig) -> bool:
-    """Whether this process's environment differs from what ``cfg`` needs (see the module doc)."""
+    """Whether this process's environment differs from what ``cfg`` needs (see the module doc);
+    ``InputError`` for a dispatch no process can have (``check_dispatch``)."""
+    check_dispatch(cfg)
     portable_here = os.environ.get(MARKER) == "portable"
     if cfg.determinism == "portable":
         return not portable_here
@@ -74,15 +86,16 @@ def train_in_child(cfg: TrainConfig, tracker: Tracker) -> RunResult:
     config_file.write_text(json.dumps({"config": asdict(cfg)}, indent=2))
     if os.environ.get(CHILD):
         raise RuntimeError("a training child process did not get the environment its run needs")
-    proc = subprocess.run([sys.executable, "-m", "ftgspp.trainer", str(config_file)], env=child_environment(cfg),
-                          capture_output=True, text=True)
-    (out_dir / "dispatch_child.log").write_text(proc.stdout + proc.stderr)
     result_file = out_dir / "dispatch_result.json"
-    if proc.returncode != 0 or not result_file.exists():
-        last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+    result_file.unlink(missing_ok=True)  # an earlier child's, in a resumed run's folder
+    code, last = _run_streamed([sys.executable, "-m", "ftgspp.trainer", str(config_file)], child_environment(cfg),
+                               out_dir / "dispatch_child.log")
+    blob = json.loads(result_file.read_text()) if result_file.exists() else {}
+    if "input_error" in blob:  # the child's one-line error is this process's
+        raise InputError(**blob["input_error"])
+    if code != 0 or not blob:
         raise RuntimeError(f"training (determinism={cfg.determinism}, dispatch={cfg.dispatch}) failed in its "
                            f"child process: {last}")
-    blob = json.loads(result_file.read_text())
     for step, values in blob["curve"]:
         tracker.log_metrics(values, step=step)
     tracker.set_tags({f"determinism.{k}": v for k, v in blob["domain"].items()})
@@ -91,6 +104,25 @@ def train_in_child(cfg: TrainConfig, tracker: Tracker) -> RunResult:
         tracker.log_artifact(Path(path), artifact_path)
     return RunResult(status=blob["status"], metrics=blob["metrics"], failure=blob["failure"], out_dir=out_dir,
                      artifacts=[Path(p) for p, where in blob["artifacts"] if where == "renders"])
+
+
+def _run_streamed(argv: list[str], env: dict[str, str], log_file: Path) -> tuple[int, str]:
+    """Run ``argv`` with its stdout and stderr (merged) copied to this process's stderr as they
+    come and to ``log_file``; returns its exit code and its last non-empty line."""
+    decoder = codecs.getincrementaldecoder("utf-8")(errors="replace")
+    tail = ""
+    with open(log_file, "wb") as log, subprocess.Popen(argv, env=env, stdout=subprocess.PIPE,
+                                                       stderr=subprocess.STDOUT) as proc:
+        assert proc.stdout is not None
+        while chunk := proc.stdout.read1(1 << 16):  # whatever is there: a progress bar's \r updates too
+            log.write(chunk)
+            text = decoder.decode(chunk)
+            sys.stderr.write(text)
+            sys.stderr.flush()
+            tail = (tail + text)[-4096:]
+        code = proc.wait()
+    lines = [line for line in re.split(r"[\r\n]", tail) if line.strip()]
+    return code, lines[-1] if lines else "no output"
 
 
 class _Recorder:
@@ -118,12 +150,22 @@ def child_main(config_file: Path, train: Callable[..., RunResult]) -> int:
     """The child: train the saved config with ``train`` and write what the parent collects."""
     from ftgspp.data.load import load_scene
 
+    handler = logging.StreamHandler()  # the parent shows what the child logs
+    handler.setFormatter(logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"))
+    package_log = logging.getLogger("ftgspp")
+    package_log.addHandler(handler)
+    package_log.setLevel(logging.INFO)
     blob = json.loads(config_file.read_text())
     cfg = train_config_from_dict(blob["config"])
+    result_file = Path(cfg.out_dir) / "dispatch_result.json"
     recorder = _Recorder()
-    result = train(cfg, load_scene(cfg.data), recorder)
+    try:
+        result = train(cfg, load_scene(cfg.data), recorder)
+    except InputError as err:  # raised again in the parent, as one line
+        result_file.write_text(json.dumps({"input_error": {"where": err.where, "problem": err.problem}}))
+        return 2
     domain = json.loads((Path(cfg.out_dir) / "determinism.json").read_text())
-    (Path(cfg.out_dir) / "dispatch_result.json").write_text(json.dumps({
+    result_file.write_text(json.dumps({
         "status": result.status, "failure": result.failure, "metrics": result.metrics, "curve": recorder.curve,
         "domain": domain, "artifacts": recorder.artifacts}))
     return 0

@@ -1,0 +1,60 @@
+"""A trained model on disk: what ``train`` leaves in its run folder and ``ftgspp diagnose`` reads.
+
+- ``config.json``: the run's ``TrainConfig`` (``dataclasses.asdict``);
+- ``gaussians.pt``: the raw (not activated) parameters, ``{name: tensor}`` on the CPU;
+- ``color_correction.npy`` ``[C, 3, 3]`` and ``color_bias.npy`` ``[C, 3]``: the per-camera
+  colour transforms learned during training (runs with colour correction only; evaluation
+  never applies them).
+
+The resumable training state (optimizer, sampler, ...) is ``checkpoint.pt`` (``train_state``).
+
+    save_config(cfg, out_dir)            # when training starts
+    save_model(model, cc, out_dir)       # when it ends
+    model, cfg = load_run(out_dir)
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ftgspp.color import ColorCorrection
+from ftgspp.config import TrainConfig, train_config_from_dict
+from ftgspp.errors import InputError
+from ftgspp.model import FreeTimeGaussians
+
+CONFIG = "config.json"
+GAUSSIANS = "gaussians.pt"
+COLOR_MATRICES = "color_correction.npy"
+COLOR_BIAS = "color_bias.npy"
+
+
+def save_config(cfg: TrainConfig, out_dir: Path) -> None:
+    """Write ``cfg`` as ``out_dir/config.json``."""
+    (out_dir / CONFIG).write_text(json.dumps(asdict(cfg), indent=2))
+
+
+def save_model(model: FreeTimeGaussians, cc: ColorCorrection | None, out_dir: Path) -> None:
+    """Write the model's parameters and, when there is one, the learned colour correction."""
+    torch.save({k: v.detach().cpu() for k, v in model.params.items()}, out_dir / GAUSSIANS)
+    if cc is not None:
+        np.save(out_dir / COLOR_MATRICES, cc.matrices().cpu().numpy())
+        np.save(out_dir / COLOR_BIAS, cc.bias.detach().cpu().numpy())
+
+
+def load_run(run_dir: str | Path, device: str = "cpu") -> tuple[FreeTimeGaussians, TrainConfig]:
+    """The model (on ``device``) and config of a finished run; ``InputError`` if either is missing."""
+    run = Path(run_dir)
+    for name in (CONFIG, GAUSSIANS):
+        if not (run / name).is_file():
+            raise InputError(run / name, "not found (is this a finished training run?)")
+    try:
+        cfg = train_config_from_dict(json.loads((run / CONFIG).read_text()))
+    except (json.JSONDecodeError, TypeError) as err:
+        raise InputError(run / CONFIG, f"unreadable: {err}") from err
+    params = torch.load(run / GAUSSIANS, map_location=device, weights_only=True)
+    return FreeTimeGaussians(params, cfg.model), cfg

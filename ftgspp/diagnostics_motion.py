@@ -1,0 +1,170 @@
+"""Motion and time in a trained model: image-plane velocities, composited maps, x–t slices,
+and its motion against a synthetic scene's ground truth.
+
+- **Velocity map**: each Gaussian's 3D velocity projected to the image (Jacobian of the
+  pinhole projection at its mean, pixels per frame), alpha-composited like a colour.
+- **x–t slice**: one image row of a camera stacked over all frames (rows = time), where
+  relocation wobble shows as jagged edges.
+- **Motion error** (scenes with ``gt/``): the composited 3D velocity (world units/s, divided
+  by alpha where alpha > ``ALPHA_MIN``) against ``gt/flow3d``: mean end-point error on moving
+  objects (``gt/objects > 0``) and the mean speed leaking into static regions.
+- **Static flicker** (secret 4): temporal std of the rendered colour on pixels static for
+  the whole clip.
+
+    flow, alpha = velocity_map(model, cam, t, fps)        # [H, W, 2] px/frame, [H, W]
+    gt = load_ground_truth(scene, cam_index)              # None without gt/
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from ftgspp.data.scene import Camera, Scene
+from ftgspp.model import FreeTimeGaussians
+from ftgspp.view import render_view
+
+ALPHA_MIN = 0.5  # composited quantities are trusted where alpha > this
+
+
+# --------------------------------------------------------------------------- velocities
+
+
+def pixel_velocities(model: FreeTimeGaussians, cam: Camera, t: float) -> torch.Tensor:
+    """Image-plane velocity of every Gaussian's centre at time ``t``, px/s, ``[N, 2]``.
+
+    d/dt (fx x/z + cx, fy y/z + cy) with camera-space position p = R μ(t) + T and ṗ = R v.
+    """
+    p_ = model.params
+    dev = p_["means"].device
+    R = torch.as_tensor(cam.R, dtype=torch.float32, device=dev)
+    T = torch.as_tensor(cam.T, dtype=torch.float32, device=dev)
+    with torch.no_grad():
+        mu = p_["means"] + p_["velocities"] * (t - p_["times"])[:, None]  # [N, 3]
+        p = mu @ R.T + T  # [N, 3]
+        pdot = p_["velocities"] @ R.T  # [N, 3]
+        z = p[:, 2].clamp_min(1e-6)
+        fx, fy = float(cam.K[0, 0]), float(cam.K[1, 1])
+        du = fx * (pdot[:, 0] * z - p[:, 0] * pdot[:, 2]) / z**2
+        dv = fy * (pdot[:, 1] * z - p[:, 1] * pdot[:, 2]) / z**2
+        return torch.stack([du, dv], dim=-1)
+
+
+def composite(model: FreeTimeGaussians, cam: Camera, t: float, values: torch.Tensor, backend: str = "auto"
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Alpha-composite per-Gaussian ``values [N, D]``: ``(image / alpha [H, W, D], alpha [H, W])``,
+    the normalised image being 0 where alpha <= ``ALPHA_MIN``."""
+    with torch.no_grad():
+        out, _ = render_view(model, cam, t, 0, background=None, backend=backend, colors=values.float())
+    img = out.image.detach().cpu().numpy().astype(np.float64)
+    alpha = out.alpha[..., 0].detach().cpu().numpy().astype(np.float64)
+    ok = alpha > ALPHA_MIN
+    return np.where(ok[..., None], img / np.where(ok, alpha, 1.0)[..., None], 0.0), alpha
+
+
+def velocity_map(model: FreeTimeGaussians, cam: Camera, t: float, fps: float, backend: str = "auto"
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Composited image-plane velocity in px/frame ``[H, W, 2]`` and alpha ``[H, W]``."""
+    return composite(model, cam, t, pixel_velocities(model, cam, t) / fps, backend)
+
+
+# --------------------------------------------------------------------------- x–t slices
+
+
+def xt_slice(frames: np.ndarray, row: int) -> np.ndarray:
+    """Row ``row`` of every frame: ``frames [F, H, W, C] -> [F, W, C]`` (time down)."""
+    return np.ascontiguousarray(np.asarray(frames)[:, row])
+
+
+def render_frames(model: FreeTimeGaussians, cam: Camera, times: np.ndarray, sh_degree: int,
+                  background: torch.Tensor | None = None, backend: str = "auto") -> np.ndarray:
+    """RGB renders at every time, float32 ``[F, H, W, 3]`` in [0, 1]."""
+    out = []
+    with torch.no_grad():
+        for t in times:
+            r, _ = render_view(model, cam, float(t), sh_degree, background=background, backend=backend)
+            out.append(r.image.clamp(0, 1).cpu().numpy())
+    return np.stack(out).astype(np.float32)
+
+
+# --------------------------------------------------------------------------- ground truth and motion error
+
+
+@dataclass
+class GroundTruth:
+    """Per-camera ground truth of a synthetic scene at the camera's resolution."""
+
+    depth: np.ndarray  # [F, H, W] float32 camera z-depth
+    flow3d: np.ndarray  # [F, H, W, 3] float32 world velocity of the visible point, units/s
+    objects: np.ndarray  # [F, H, W] uint8, 0 = static background
+
+
+def load_ground_truth(scene: Scene, cam: int) -> GroundTruth | None:
+    """``gt/{depth,flow3d,objects}/<cam>.npy`` cut to the loaded frames and resized
+    (nearest) to the camera's resolution; None when the scene has no such files."""
+    if scene.ground_truth is None:
+        return None
+    c = scene.cameras[cam]
+    paths = [Path(scene.ground_truth) / sub / f"{c.name}.npy" for sub in ("depth", "flow3d", "objects")]
+    if not all(p.is_file() for p in paths):
+        return None
+    ids = np.asarray(scene.frame_ids)
+    arrays = []
+    for p in paths:
+        a = np.load(p, mmap_mode="r")[ids]
+        if a.shape[1:3] != (c.height, c.width):
+            a = np.stack([cv2.resize(np.asarray(x, dtype=np.float32), (c.width, c.height),
+                                     interpolation=cv2.INTER_NEAREST) for x in a])  # fmt: skip
+        arrays.append(np.asarray(a))
+    return GroundTruth(arrays[0].astype(np.float32), arrays[1].astype(np.float32), arrays[2].astype(np.uint8))
+
+
+def motion_error(velocity: np.ndarray, alpha: np.ndarray, gt_flow3d: np.ndarray, objects: np.ndarray,
+                 alpha_min: float = ALPHA_MIN) -> dict[str, float]:
+    """Motion error of a composited velocity image against ground-truth scene flow.
+
+    velocity ``[..., H, W, 3]`` (already divided by alpha), alpha ``[..., H, W]``, gt
+    ``[..., H, W, 3]``, objects ``[..., H, W]``. Returns ``epe_dynamic`` (mean |v − v_gt|
+    over covered pixels on moving objects), ``leak_static`` (mean |v| over covered static
+    pixels) and the pixel counts. Leading dimensions (e.g. frames) are pooled.
+    """
+    covered = alpha > alpha_min
+    dyn, sta = covered & (objects > 0), covered & (objects == 0)
+    epe = np.linalg.norm(velocity - gt_flow3d, axis=-1)
+    speed = np.linalg.norm(velocity, axis=-1)
+    return {
+        "epe_dynamic": float(epe[dyn].mean()) if dyn.any() else float("nan"),
+        "leak_static": float(speed[sta].mean()) if sta.any() else float("nan"),
+        "gt_speed_dynamic": float(np.linalg.norm(gt_flow3d, axis=-1)[dyn].mean()) if dyn.any() else float("nan"),
+        "n_dynamic_px": float(dyn.sum()),
+        "n_static_px": float(sta.sum()),
+    }
+
+
+def scene_motion_error(model: FreeTimeGaussians, scene: Scene, cam: int, gt: GroundTruth,
+                       frames: list[int] | None = None, backend: str = "auto") -> tuple[dict, dict]:
+    """``motion_error`` of ``model`` in camera ``cam`` pooled over ``frames`` (default all),
+    and per-frame maps ``{frame: (velocity [H, W, 3], alpha [H, W])}``."""
+    frames = list(range(scene.n_frames)) if frames is None else frames
+    vel = model.params["velocities"].detach()
+    maps = {f: composite(model, scene.cameras[cam], float(scene.times[f]), vel, backend) for f in frames}
+    v = np.stack([maps[f][0] for f in frames])
+    a = np.stack([maps[f][1] for f in frames])
+    return motion_error(v, a, gt.flow3d[frames], gt.objects[frames]), maps
+
+
+def static_flicker(frames: np.ndarray, objects: np.ndarray) -> dict[str, float]:
+    """Secret 4: temporal std of the colour over pixels static in every frame.
+
+    ``frames [F, H, W, C]`` in [0, 1], ``objects [F, H, W]`` (0 = static). Per pixel the
+    population std over frames, averaged over channels; returns its mean over the pixels
+    whose mask is 0 throughout (``flicker``) and their count.
+    """
+    static = (np.asarray(objects) == 0).all(axis=0)  # [H, W]
+    std = np.asarray(frames, dtype=np.float64).std(axis=0).mean(axis=-1)  # [H, W]
+    return {"flicker": float(std[static].mean()) if static.any() else float("nan"),
+            "n_static_px": float(static.sum())}
