@@ -27,7 +27,7 @@ class DataConfig:
 
 @dataclass
 class ModelConfig:
-    """Per-Gaussian representation (DESIGN.md section 4)."""
+    """Per-Gaussian representation (docs/design.md §4)."""
 
     name: str = "ftgs"
     sh_degree: int = 3
@@ -98,7 +98,7 @@ class LearningRates:
 
 @dataclass
 class LossConfig:
-    """Weights of the training loss terms (DESIGN.md section 4, ``trainer.loss_terms``)."""
+    """Weights of the training loss terms (docs/design.md §4, ``trainer.loss_terms``)."""
 
     ssim: float = 0.2  # λ in the photometric term (1 − λ) L1 + λ (1 − SSIM)
     lpips: float = 0.0  # LPIPS-Alex; 0.01 on GPU profiles

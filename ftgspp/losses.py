@@ -1,7 +1,7 @@
 """Training losses: photometric term and regularisers (pure functions).
 
 total = (1 − λ)·L1 + λ·(1 − SSIM) + 0.01·mean(sigmoid(o)·φ(t).detach())
-        + 0.01·mean(exp(S)) [+ 1e-3·mean(1 − g)] [+ CC term]   (DESIGN.md section 4)
+        + 0.01·mean(exp(S)) [+ 1e-3·mean(1 − g)] [+ CC term]   (docs/design.md §4)
 """
 
 from __future__ import annotations

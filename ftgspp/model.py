@@ -2,7 +2,7 @@
 
 Each Gaussian has a spatial mean μx, a temporal centre μt, a duration parameter d, a
 velocity v, log-scales S, a quaternion R, an opacity logit o, SH colour coefficients and
-a gate logit g̃ (DESIGN.md section 4). At time t it is an ordinary 3D Gaussian with
+a gate logit g̃ (docs/design.md §4). At time t it is an ordinary 3D Gaussian with
 
     μx(t) = μx + v (t − μt),     α(t) = sigmoid(o) · φ(t),
     φ(t)  = g + (1 − g) a(t)  (gate on)   or   a(t)  (gate off),
@@ -75,7 +75,7 @@ class FreeTimeGaussians(nn.Module):
         init: InitConfig,
         device: torch.device | str = "cpu",
     ) -> "FreeTimeGaussians":
-        """Build a model on ``device`` from initial points (DESIGN.md section 4, "Init")."""
+        """Build a model on ``device`` from initial points (docs/design.md §4, "Init")."""
         n = len(means)
         f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
         full = lambda value: torch.full((n,), float(value), device=device)  # noqa: E731

@@ -1,7 +1,7 @@
 """``train(cfg, scene, tracker)``: the FreeTimeGS(++) optimisation loop.
 
 One iteration: pick a (training camera, frame) pair from a seeded shuffle, evaluate the
-Gaussians at that frame's time, render, compute the loss of DESIGN.md section 4
+Gaussians at that frame's time, render, compute the loss of docs/design.md §4
 (``loss_terms``), backpropagate, take one Adam step over every parameter group, and every
 ``refine_every`` iterations relocate dead Gaussians. Everything the loop mutates lives in
 one ``TrainState`` (``ftgspp/train_state.py``); checkpoints go to
@@ -67,7 +67,7 @@ def loss_terms(
     cc: ColorCorrection | None = None,  # only while the correction is switched on
     lpips_net: torch.nn.Module | None = None,
 ) -> dict[str, torch.Tensor]:
-    """The training loss of DESIGN.md section 4, term by term; ``"total"`` is their weighted sum.
+    """The training loss of docs/design.md §4, term by term; ``"total"`` is their weighted sum.
 
     With the weights of ``cfg.loss`` (λ = ``ssim``):
 

@@ -1,7 +1,7 @@
 """Initial 4D Gaussians from multi-view video: keyframe triangulation and velocities.
 
 ``initialize(scene, cfg.init, budget, seed)`` returns an ``InitPoints`` with exactly
-``budget`` points (DESIGN.md section 4, "Init"); the model turns it into parameters.
+``budget`` points (docs/design.md §4, "Init"); the model turns it into parameters.
 """
 
 from ftgspp.init.points import InitPoints, depth_range, initialize, triangulate_keyframe

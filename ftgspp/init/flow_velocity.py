@@ -1,4 +1,4 @@
-"""Flow-guided initial velocities (FreeTimeGS++, DESIGN.md section 4, "Init").
+"""Flow-guided initial velocities (FreeTimeGS++, docs/design.md §4, "Init").
 
 For the points ``X [M, 3]`` of keyframe ``frame0`` and the next keyframe ``frame1``:
 

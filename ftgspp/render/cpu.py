@@ -1,6 +1,6 @@
 """The ``cpu`` rasterization backend: compiled Numba kernels with a hand-written backward.
 
-Same contract and results as ``reference.rasterize`` (docs/CONTRACTS.md), two to three
+Same contract and results as ``reference.rasterize`` (ftgspp/render/contract.py), two to three
 orders of magnitude faster on CPU. Maths is float32; outputs come back in the dtype and on
 the device of ``means2d``. Gradients flow to ``means2d``, ``conics``, ``colors``,
 ``opacities``, ``depths`` and ``background``, and are bitwise identical from run to run and

@@ -1,6 +1,6 @@
 """Numba kernels of the ``cpu`` rasterization backend (forward and hand-written backward).
 
-The maths follows the rasterizer contract in ``docs/CONTRACTS.md`` in float32, with the
+The maths follows the rasterizer contract in ``ftgspp/render/contract.py`` in float32, with the
 power evaluated in the reference rasterizer's rounding order,
 ``power = (-0.5 a) dx dx + (-0.5 c) dy dy - (b dy) dx``, and ``exp`` computed by
 ``exp_clamped`` (pure float32 arithmetic, within 1 ulp of the exact value):

@@ -1,6 +1,6 @@
 """Reference tile rasterizer: pure PyTorch autograd, the oracle for every faster backend.
 
-Implements the rasterizer contract of ``docs/CONTRACTS.md`` literally:
+Implements the rasterizer contract of ``ftgspp/render/contract.py`` literally:
 
 1. Each Gaussian with radius r > 0 covers the tiles tx in [tx0, tx1), ty in [ty0, ty1),
    tx0 = clamp(floor((x - r) / 16), 0, TX), tx1 = clamp(floor((x + r + 15) / 16), 0, TX),

@@ -21,7 +21,7 @@ AVERAGE = "average"
 KEY_COLUMNS = ["variant", "scene", "seed", "config_hash"]
 RUN_COLUMNS = ("scene_label", "status", "failure", "error", "run_id", "trainer_fingerprint", "command")
 EXTRA_PARAMS = ("budget", "iterations", "lr.scale")
-# run tags that say which determinism domain a run's bits come from (ftgspp/determinism.py)
+# run tags that say which determinism domain a run's bits come from (ftgspp/runtime/determinism.py)
 DOMAIN_COLUMNS = {"domain": "determinism.id", "determinism": "determinism.mode",
                   "cpu_capability": "determinism.torch_cpu_capability", "cpu_model": "determinism.cpu_model",
                   "torch_threads": "determinism.torch_threads"}

@@ -268,7 +268,7 @@ def determinism_lines(df: pd.DataFrame) -> list[str]:
                      f" torch kernels {d.cpu_capability}, {d.torch_threads} torch thread(s), {d.cpu_model}).")
     else:
         lines += [f"**Runs from {len(doms)} determinism domains.** Numbers of different domains need not agree"
-                  " bit for bit (ftgspp/determinism.py; portable-mode runs reproduce on any x86-64 machine with"
+                  " bit for bit (ftgspp/runtime/determinism.py; portable-mode runs reproduce on any x86-64 machine with"
                   " the same package versions).", "",
                   "| domain | mode | torch kernels | threads | CPU | runs | variants |", "|---|---|---|---:|---|---:|---|"]
         lines += [f"| `{d.domain}` | {d['mode']} | {d.cpu_capability} | {d.torch_threads} | {d.cpu_model} | {d.runs} |"

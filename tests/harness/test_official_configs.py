@@ -1,4 +1,4 @@
-"""Study variants match the official FreeTimeGS++ configurations (DESIGN.md section 4).
+"""Study variants match the official FreeTimeGS++ configurations (docs/design.md §4).
 
 Base and +Flow keep FreeTimeGS's unbounded temporal scale (``max_duration = inf``,
 ``null`` here); the 1 s bound always comes together with the gate

@@ -45,7 +45,7 @@ def test_a_run_of_a_worker_with_fewer_threads_is_compared_like_with_like(
         tmp_path: Path, mlflow_template: Path, monkeypatch) -> None:
     """A joblib worker trains with fewer torch threads than the plan assumed; its domain is that
     of this machine at that thread count, and resume must not call it foreign."""
-    from ftgspp.determinism import expected_domain_id
+    from ftgspp.runtime.determinism import expected_domain_id
 
     prepare_workdir(tmp_path, mlflow_template, monkeypatch)
     use_fakes(monkeypatch)

@@ -2,7 +2,7 @@
 
 Oracles: the reference rasterizer (pure PyTorch autograd, tile-masked like the contract) for
 images and every gradient, a float64 per-pixel Python loop written from the contract in
-docs/CONTRACTS.md for the forward pass, and the bench's dense yardstick (every
+ftgspp/render/contract.py for the forward pass, and the bench's dense yardstick (every
 Gaussian-pixel pair). Scenes (``cpu_scenes.py``) mix overlapping, tiny, huge, needle-like,
 indefinite, behind-camera (radius 0), off-screen, saturated and radius-truncated Gaussians
 on an image whose size is not a multiple of the tile size. The kernels' own pieces are

@@ -17,7 +17,7 @@ W, H = 20, 17  # 2 x 2 tiles, the last row and column of tiles partly outside th
 
 
 # ---------------------------------------------------------------------------------------
-# The oracle: docs/CONTRACTS.md, one pixel at a time, in Python floats.
+# The oracle: ftgspp/render/contract.py, one pixel at a time, in Python floats.
 
 
 def brute_force(means2d, conics, colors, opacities, depths, radii, width, height, background=None):
