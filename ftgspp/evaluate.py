@@ -90,14 +90,15 @@ def evaluate(
 def evaluate_lpips(model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig) -> dict[str, float]:
     """LPIPS (the networks in ``cfg.eval_lpips``, both input conventions) over the held-out frames.
 
-    Empty when the weights are missing; a metric whose network cannot take images this
-    small is NaN with a one-line warning (``ftgspp.metrics.LPIPS_MIN_SIDE``).
+    ``{"lpips_missing": 1.0}`` when the weights are missing (the run records that it was
+    scored without LPIPS, so a later run with the weights fills it in); a metric whose network
+    cannot take images this small is NaN with a one-line warning (``ftgspp.metrics.LPIPS_MIN_SIDE``).
     """
     if not cfg.eval_lpips:
         return {}
     lpips = lpips_models(model.params["means"].device, cfg.eval_lpips)
     if lpips is None:
-        return {}
+        return {"lpips_missing": 1.0}
     names = [n for n in available_metrics(lpips) if METRICS[n].lpips_net is not None]
     metrics, _ = _score(model, scene, cfg, names, lpips, None, 0)
     metrics.pop("eval_frames")

@@ -32,11 +32,16 @@ from ftgspp.color import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
 from ftgspp.diagnostics import run_diagnostics
+from ftgspp.errors import InputError
 from ftgspp.evaluate import check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
+from ftgspp.render import BACKENDS
 from ftgspp.runtime import enter, needs_child, train_in_child
+from ftgspp.runtime.child import check_dispatch
+from ftgspp.runtime.determinism import MODES
+from ftgspp.strategy import Relocator
 from ftgspp.tracker import NullTracker, RunResult, Tracker
 from ftgspp.train_state import TrainState, set_learning_rates
 from ftgspp.view import render_view
@@ -100,13 +105,24 @@ def sh_degree_at(cfg: TrainConfig, it: int) -> int:
     return min(cfg.model.sh_degree, it // max(cfg.sh_degree_interval, 1))
 
 
+def check_config(cfg: TrainConfig) -> None:
+    """Every check of ``cfg`` that needs no scene and writes nothing; one-line ``InputError``."""
+    check_eval_lpips(cfg.eval_lpips)
+    check_dispatch(cfg)
+    if cfg.determinism not in MODES:
+        raise InputError("determinism", f"unknown mode '{cfg.determinism}' (choose from {', '.join(MODES)})")
+    Relocator(cfg.strategy)  # unknown relocation policy or clamp rule
+    if cfg.backend not in BACKENDS:
+        raise InputError("backend", f"unknown backend '{cfg.backend}' (choose from {', '.join(BACKENDS)})")
+
+
 def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> RunResult:
     """Train one run and evaluate it; never raises for divergence (returns FAILED instead).
 
     Bad input (unknown policy, unavailable feature, bad scene) raises ``InputError``.
     """
     tracker = tracker or NullTracker()
-    check_eval_lpips(cfg.eval_lpips)
+    check_config(cfg)
     if needs_child(cfg):  # another determinism environment / kernel dispatch: train in a fresh process
         return train_in_child(cfg, tracker)
     out_dir = Path(cfg.out_dir)

@@ -16,8 +16,16 @@ import numpy as np
 import pytest
 import torch
 
-from ftgspp.lpips import LPIPS, WEIGHT_FILES, WeightsError, fetch, load_lpips, main_weights, verify
-from ftgspp.lpips import weights as weights_mod
+from ftgspp.lpips import (
+    LPIPS,
+    WEIGHT_FILES,
+    WeightsError,
+    fetch,
+    load_lpips,
+    main_weights,
+    verify,
+    weights as weights_mod,
+)
 from ftgspp.lpips.weights import flax_to_torch, safe_load_numpy_pickle
 from ftgspp.metrics import evaluate_images, lpips_distance, read_image
 

@@ -138,17 +138,31 @@ def test_cli_train_writes_metrics_and_prints_one_json_line(tiny_scene_dir, tmp_p
     assert (run_dir / ".hydra" / "config.yaml").exists()
 
 
-@pytest.mark.parametrize("args, key", [
-    (["data.path=/nonexistent/scene"], "/nonexistent/scene"),
-    (["iterations=abc"], "iterations"),
-    (["strategy.relocation=teleport", "data.path=X"], "strategy.relocation"),
+@pytest.mark.parametrize("args, words", [
+    (["data.path=/nonexistent/scene"], ["/nonexistent/scene", "no such folder"]),
+    (["iterations=abc", "data.path=X"], ["iterations", "could not be converted to Integer"]),
+    (["strategy.relocation=teleport", "data.path=X"], ["strategy.relocation", "choose from mcmc, exact_copy"]),
+    (["model.bogus=1", "data.path=X"], ["model.bogus: unknown key", "gate_gamma"]),  # the section's keys
+    (["profile=quik", "data.path=X"], ["unknown profile", "choose from paper, quick, smoke"]),
 ])
-def test_cli_bad_input_is_one_line_and_exit_2(args, key, tiny_scene_dir, tmp_path):
+def test_cli_bad_input_is_one_line_exit_2_and_writes_nothing(args, words, tiny_scene_dir, tmp_path):
     args = [a.replace("data.path=X", f"data.path={tiny_scene_dir}") for a in args]
-    r = run_cli("train", *args, f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    r = run_cli("train", *args, cwd=tmp_path)  # Hydra's default outputs/<date>/<time>
     assert r.returncode == 2, (r.stdout, r.stderr)
     lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
-    assert len(lines) == 1 and key in lines[0] and "Traceback" not in r.stderr
+    assert len(lines) == 1 and all(w in lines[0] for w in words) and "Traceback" not in r.stderr, lines
+    assert not (tmp_path / "outputs").exists()  # a run that fails validation writes nothing
+
+
+def test_cli_help_lists_the_config_groups_and_every_key_with_its_default(tmp_path):
+    r = run_cli("train", "--help", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "ftgspp train [group=option ...]" in r.stdout
+    assert "profile: paper, quick, smoke" in r.stdout and "model: ftgs, ftgspp" in r.stdout
+    assert "keyframe_stride: 10" in r.stdout and "budget:" in r.stdout  # the keys with their defaults
+    job = run_cli("train", "--cfg", "job", "model=ftgspp", cwd=tmp_path)
+    assert job.returncode == 0 and "gate: true" in job.stdout
+    assert not (tmp_path / "outputs").exists()
 
 
 def test_lpips_training_loss_changes_the_optimisation(tiny_scene_dir, tiny_scene, tmp_path, lpips_weights):

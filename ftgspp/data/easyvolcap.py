@@ -29,8 +29,8 @@ from typing import Iterator, Sequence
 import cv2
 import numpy as np
 
-from ftgspp.data.source import SceneSource, kept_cameras
 from ftgspp.data.scene import Camera
+from ftgspp.data.source import SceneSource, kept_cameras
 from ftgspp.errors import InputError
 
 DEFAULT_FPS = 30.0

@@ -30,6 +30,7 @@ def _dispatch(cmd: str, args: list[str]) -> int:
     if cmd == "train":
         from harness.cli.train import main as train_main
 
+        sys.argv = [sys.argv[0], *args]  # Hydra's app reads the command line; "train" is consumed here
         return train_main(args)
     if cmd == "synth":
         from ftgspp.data.synthetic import main as synth_main

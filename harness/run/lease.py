@@ -102,6 +102,18 @@ def _take_over(store: Store, stale: list[RunRecord], me: str, lease_s: float) ->
     return taken
 
 
+def counts_as_done(rec: RunRecord) -> bool:
+    """A FINISHED run, unless it was scored without LPIPS (weights missing then) and the weights
+    exist now: then a new run fills the LPIPS columns in."""
+    if rec.status != "FINISHED":
+        return False
+    if rec.metrics.get("lpips_missing") != 1.0:
+        return True
+    from ftgspp.lpips import weights_present
+
+    return not weights_present()
+
+
 def acquire(store: Store, experiment_id: str, run_name: str, tags: dict[str, str], lease_s: float,
             owner: str | None = None, rng: random.Random | None = None) -> Claim:
     """Claim the run whose key is in ``tags`` (study, variant, scene, seed, config_hash).
@@ -114,7 +126,7 @@ def acquire(store: Store, experiment_id: str, run_name: str, tags: dict[str, str
     took_over: list[str] = []
     for attempt in range(MAX_ATTEMPTS):
         runs = find_key_runs(store, experiment_id, tags)
-        if any(r.status == "FINISHED" for r in runs):
+        if any(counts_as_done(r) for r in runs):
             return Claim(None, "finished")
         live = [r for r in runs if is_live(r, lease_s)]
         if live:
@@ -126,7 +138,7 @@ def acquire(store: Store, experiment_id: str, run_name: str, tags: dict[str, str
             claim_tags[TOOK_OVER] = ",".join(took_over)
         run_id = store.create_run(experiment_id, run_name, claim_tags)
         others = [r for r in find_key_runs(store, experiment_id, tags)
-                  if r.run_id != run_id and (r.status == "FINISHED" or is_live(r, lease_s))]
+                  if r.run_id != run_id and (counts_as_done(r) or is_live(r, lease_s))]
         if not others:
             return Claim(run_id, took_over=tuple(took_over))
         store.delete_run(run_id)  # someone claimed at the same moment: withdraw, look again

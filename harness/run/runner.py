@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import subprocess
+import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -55,15 +57,35 @@ class StudyOutcome:
 
 
 
+WARMUP = (sys.executable, "-m", "ftgspp.bench.warmup")
+
+
+def warm_kernels(echo: Callable[[str], None]) -> None:
+    """Compile the cpu kernels once, with a line saying so, when Numba's cache is cold: else
+    every worker would compile them at once, silently, for minutes."""
+    from ftgspp.bench.warmup import kernels_cached
+
+    if kernels_cached():
+        return
+    echo("compiling the CPU kernels (once per install or code change: ~1 min on an idle 2-core machine) ...")
+    t0 = time.time()
+    proc = subprocess.run(list(WARMUP), capture_output=True, text=True)
+    if proc.returncode != 0:  # the runs will compile (or fail) themselves and say why
+        echo(f"  kernel warm-up failed: {(proc.stderr.strip().splitlines() or ['no output'])[-1]}")
+        return
+    echo(f"  kernels compiled in {time.time() - t0:.0f} s")
+
+
 def pending(existing: list[RunRecord], planned: list[PlannedRun],
             lease_s: float = lease.DEFAULT_LEASE_S) -> tuple[list[PlannedRun], list[RunRecord]]:
     """(planned runs to launch, live claims of other invocations that are left to them),
     given the study's ``existing`` child runs.
 
     A run is launched unless it FINISHED or a live worker holds it; stale RUNNING runs are
-    taken over by the job that claims the run (``run.lease.acquire``), not here.
+    taken over by the job that claims the run (``run.lease.acquire``), not here. A finished run
+    scored without LPIPS is run again once the weights are there.
     """
-    done = {r.key for r in existing if r.status == "FINISHED"}
+    done = {r.key for r in existing if lease.counts_as_done(r)}
     live = {r.key: r for r in existing if lease.is_live(r, lease_s) and r.key not in done}
     todo = [p for p in planned if p.key not in done and p.key not in live]
     keys = {p.key for p in planned}
@@ -216,6 +238,8 @@ def run_study(
     for scene in {p.spec.scene.name: p.spec.scene for p in todo}.values():
         with scene_lock(scene):  # another invocation may be generating it right now
             ensure_scene(scene, generate, echo)
+    if train_fn is None and launcher != "slurm":  # workers on this machine train with the cpu kernels
+        warm_kernels(echo)
     parent_id, stamp = _open_parent(store, exp_id, study, sel, jobs, launcher, launcher_args, command, planned, todo)
     outcome.parent_run_id = parent_id
     # absolute: submitit's folder lives under it and jobs on other nodes must find it

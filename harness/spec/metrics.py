@@ -133,6 +133,7 @@ for _m in (
     Metric("flicker_static"),
     Metric("flicker_static_gt"),
     Metric("relocated_total", "Gaussians relocated per run", 0, NEITHER),
+    Metric("lpips_missing", "scored without LPIPS (weights missing)", 0, NEITHER, claimable=False, deterministic=False),
     # per-run gaps between metric conventions on the same renders (the lpips study)
     Metric("gap_lpips_alex", "LPIPS-Alex: [0,1] − [-1,1] input", 4, NEITHER, DIFFERENCE, ("lpips_alex_01", "lpips_alex")),
     Metric("gap_lpips_vgg", "LPIPS-VGG: [0,1] − [-1,1] input", 4, NEITHER, DIFFERENCE, ("lpips_vgg_01", "lpips_vgg")),

@@ -25,3 +25,19 @@ def test_a_profile_states_its_expected_runtime_and_machine() -> None:
     assert prof.estimate(25, 2) == "~12 min (25 runs x ~40 s, 2 at a time) on an idle 2-core machine"
     assert prof.estimate(1, 1) == "~40 s (1 run x ~40 s) on an idle 2-core machine"
     assert fmt_duration(3700) == "1 h 02 min"
+
+
+def test_a_cold_kernel_cache_is_announced_and_compiled_once(monkeypatch) -> None:
+    import sys
+
+    import ftgspp.bench.warmup
+    from harness.run import runner
+
+    lines: list[str] = []
+    monkeypatch.setattr(ftgspp.bench.warmup, "kernels_cached", lambda: True)
+    runner.warm_kernels(lines.append)
+    assert lines == []  # a warm cache: nothing to say, nothing run
+    monkeypatch.setattr(ftgspp.bench.warmup, "kernels_cached", lambda: False)
+    monkeypatch.setattr(runner, "WARMUP", (sys.executable, "-c", "print(1.0)"))
+    runner.warm_kernels(lines.append)
+    assert lines[0].startswith("compiling the CPU kernels (once per install") and "kernels compiled in" in lines[1]

@@ -32,7 +32,7 @@ def test_secret5_smoke_run_report_and_resume(workdir: Path, capsys: pytest.Captu
     assert main(args) == 0
     assert "1 already finished, 0 to run" in capsys.readouterr().out
     assert main(["report", "secret5"]) == 0
-    report = Path("reports/secret5")
+    report = Path("outputs/reports/secret5")
     for name in ("index.md", "table.md", "table.tex", "strip_psnr.png"):
         assert (report / name).is_file(), name
     assert "| baseline |" in (report / "table.md").read_text()

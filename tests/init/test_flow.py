@@ -18,8 +18,14 @@ from ftgspp.config import InitConfig
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.errors import InputError
 from ftgspp.init.flow import (
-    DISFlow, FlowModel, flow_cache_dir, forward_backward_weight, get_flow_model, keyframe_flows,
-    register_flow_model, sample_bilinear,
+    DISFlow,
+    FlowModel,
+    flow_cache_dir,
+    forward_backward_weight,
+    get_flow_model,
+    keyframe_flows,
+    register_flow_model,
+    sample_bilinear,
 )  # fmt: skip
 from ftgspp.init.flow_velocity import combine_views, flow_velocities, keyframe_flow_velocities
 

@@ -9,9 +9,8 @@ import torch
 from scipy import stats
 from torch import nn
 
-from ftgspp.errors import InputError
-
 from ftgspp.config import StrategyConfig
+from ftgspp.errors import InputError
 from ftgspp.strategy import Relocator
 from ftgspp.strategy.policies import choose_relocation, mcmc_opacity_scale
 

@@ -1,0 +1,61 @@
+"""Compile the ``cpu`` backend's Numba kernels ahead of the runs that need them.
+
+The kernels compile on first use (about a minute on an idle 2-core machine) and are cached on
+disk. A study would otherwise start with every worker compiling them at once and printing
+nothing for minutes; ``study run`` instead checks ``kernels_cached()`` and, when the cache is
+cold, says so and runs ``python -m ftgspp.bench.warmup`` first, which calls every kernel once
+on tiny inputs (the rasterizer forward and backward, the fused prepare node, the SSIM loss).
+
+    python -m ftgspp.bench.warmup        # prints the seconds it took
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+
+def _dispatchers() -> list:
+    from ftgspp import ssim_cpu
+    from ftgspp.render import cpu_kernels, prepare_kernels
+
+    return [cpu_kernels.bin_gaussians, cpu_kernels.render_forward, cpu_kernels.render_backward,
+            cpu_kernels.reduce_pair_grads, prepare_kernels.prepare_forward, prepare_kernels.prepare_backward,
+            ssim_cpu.ssim_forward, ssim_cpu.ssim_backward]
+
+
+def kernels_cached() -> bool:
+    """Whether Numba's on-disk cache holds every kernel for the current sources (a best guess:
+    it reads Numba's cache index, whose stamp changes when a kernel's source file does)."""
+    try:
+        return all(bool(d._cache._cache_file._load_index()) for d in _dispatchers())
+    except Exception:  # another Numba layout: assume cold and warm up (harmless when cached)
+        return False
+
+
+def warm_up() -> float:
+    """Call every kernel once; returns the seconds it took (compile time when the cache was cold)."""
+    import torch
+
+    from ftgspp.bench.scene import random_scene
+    from ftgspp.bench.stages import stage_model
+    from ftgspp.metrics import ssim_same
+    from ftgspp.render import cpu
+    from ftgspp.render.prepare import prepare
+
+    t0 = time.perf_counter()
+    means2d = torch.tensor([[8.0, 8.0], [20.0, 9.0]], requires_grad=True)
+    out = cpu.rasterize(means2d, torch.tensor([[0.1, 0.0, 0.1]] * 2), torch.rand(2, 3), torch.rand(2),
+                        torch.ones(2), torch.tensor([6, 6]), 32, 24)
+    sum(o.sum() for o in out).backward()
+    scene = random_scene(4, 32, 24)
+    p = prepare(stage_model(scene, 0).params, 0.5, scene["viewmat"], scene["K"], torch.zeros(3), 32, 24, 3, 1.0,
+                True, 20.0)
+    (p.means2d.sum() + p.colors.sum()).backward()
+    (1 - ssim_same(torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3))).backward()
+    return time.perf_counter() - t0
+
+
+if __name__ == "__main__":
+    print(f"{warm_up():.1f}")
+    sys.exit(0)
