@@ -247,6 +247,9 @@ def main(argv: list[str] | None = None) -> int:
     model, cfg = load_run(args.run_dir)
     if args.data:
         cfg.data.path = args.data
+    elif not Path(cfg.data.path).is_dir():  # a relative path of a study run made elsewhere
+        raise InputError("data.path", f"{cfg.data.path}: no such folder here (the run's scene path is relative to"
+                         " where it was trained); give the scene with --data DIR")
     scene = load_scene(cfg.data)
     camera = None
     if args.camera is not None:

@@ -24,6 +24,7 @@ from ftgspp.diagnostics import run_diagnostics
 from ftgspp.diagnostics_colors import color_wheel, flow_to_rgb
 from ftgspp.diagnostics_lifetimes import lifetime_fractions, lifetime_histogram, subset_model
 from ftgspp.diagnostics_motion import composite, motion_error, pixel_velocities, velocity_map, xt_slice
+from ftgspp.errors import InputError
 from ftgspp.model import FreeTimeGaussians, duration_to_param
 
 W, H, FOCAL = 64, 48, 60.0
@@ -293,3 +294,9 @@ def test_diagnose_cli_on_a_generated_scene(tmp_path, capsys):
     assert Path(printed[0]).parent == run / "diagnostics"
     saved = json.loads((run / "diagnostics" / "diagnostics.json").read_text())
     assert saved["theta"] == 0.1 and saved["frame"] == 1 and "motion" in saved
+    # the same run read from another folder: its relative scene path means nothing there
+    cfg.data.path = "data/synth/studio-elsewhere"
+    (run / "config.json").write_text(json.dumps(asdict(cfg)))
+    with pytest.raises(InputError, match="give the scene with --data DIR"):
+        main([str(run)])
+    assert main([str(run), "--data", str(root), "--theta", "0.1"]) == 0

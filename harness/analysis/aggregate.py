@@ -201,6 +201,15 @@ def stability(df: pd.DataFrame, metric: str = "psnr") -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+KERNEL_SETS = {"DEFAULT": "x86-64 baseline (no AVX)", "AVX2": "AVX2", "AVX512": "AVX-512"}
+
+
+def kernel_set(capability: str) -> str:
+    """torch's CPU capability as people name it (``DEFAULT`` is the baseline kernel set, not the
+    determinism mode of the same name)."""
+    return KERNEL_SETS.get(str(capability), str(capability))
+
+
 def domains(df: pd.DataFrame) -> pd.DataFrame:
     """The determinism domains of the finished runs: one row per domain with its runs and cells,
     and ``mixed_cells``: (variant, scene) cells whose runs come from more than one domain."""

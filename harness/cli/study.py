@@ -156,7 +156,7 @@ def cmd_status(args: argparse.Namespace) -> int:
           + (f"; {running} running now (listed above)" if running else ""))
     doms = aggregate.domains(df)
     if len(doms):
-        print("determinism domains: " + "; ".join(f"{d.domain} ({d['mode']}, {d.cpu_capability}, {d.runs} runs)"
+        print("determinism domains: " + "; ".join(f"{d.domain} ({d['mode']} mode, torch kernels {aggregate.kernel_set(d.cpu_capability)}, {d.runs} runs)"
                                                  for _, d in doms.iterrows()))
     return 0
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 
 from harness.analysis.aggregate import AVERAGE
@@ -38,6 +39,7 @@ class Cell:
     digits: int = 2
     note: str = ""  # e.g. "1/5 failed"
     rank: int = 0  # 1 best, 2 second, 0 neither
+    n: int = 0  # finished runs behind mean and std
 
     def value_text(self, pm: str) -> str:
         if math.isnan(self.mean):
@@ -75,22 +77,42 @@ def _cell(summary: pd.DataFrame, variant: str, scene: str, metric: str) -> Cell:
     if sel.empty:
         return Cell(digits=decimals(metric))
     r = sel.iloc[0]
-    return Cell(float(r["mean"]), float(r["std"]), decimals(metric), _note(r))
+    return Cell(float(r["mean"]), float(r["std"]), decimals(metric), _note(r), n=int(r["n"]))
+
+
+RANK_ALPHA = 0.05
+
+
+def _better(a: list[Cell], b: list[Cell]) -> bool:
+    """Whether the cells ``a`` (equal as printed) differ from ``b`` by Welch's t at RANK_ALPHA;
+    True when the runs carry no spread to test with (a rank by the printed means alone)."""
+    x, y = a[0], b[0]
+    if x.n < 2 or y.n < 2 or math.isnan(x.std) or math.isnan(y.std):
+        return True
+    from scipy import stats
+
+    with np.errstate(all="ignore"):
+        p = stats.ttest_ind_from_stats(x.mean, x.std, x.n, y.mean, y.std, y.n, equal_var=False).pvalue
+    return bool(p < RANK_ALPHA) if math.isfinite(p) else x.mean != y.mean
 
 
 def rank_column(cells: list[Cell], lower_better: bool) -> None:
-    """Mark the best (1) and second-best (2) distinct values as printed; ties share a rank."""
+    """Mark the best (1) and second-best (2) distinct values as printed, each only when it is
+    better than the next by Welch's t (p < 0.05) where the cells carry a spread: a column whose
+    leaders are indistinguishable marks nothing. Ties share a rank."""
     shown = [round(c.mean, c.digits) for c in cells]
     values = sorted({v for v in shown if not math.isnan(v)}, reverse=not lower_better)
     finite = sum(not math.isnan(v) for v in shown)
     if finite < 2:
         return
-    for c, v in zip(cells, shown):
-        if not math.isnan(v):
-            if v == values[0]:
-                c.rank = 1
-            elif finite >= 3 and len(values) > 1 and v == values[1]:
-                c.rank = 2
+    groups = [[c for c, v in zip(cells, shown) if v == value] for value in values]
+    if len(groups) == 1 or not _better(groups[0], groups[1]):
+        return
+    for c in groups[0]:
+        c.rank = 1
+    if finite >= 3 and len(groups) > 1 and (len(groups) == 2 or _better(groups[1], groups[2])):
+        for c in groups[1]:
+            c.rank = 2
 
 
 def _columns(scenes: list[str]) -> list[str]:
@@ -98,12 +120,13 @@ def _columns(scenes: list[str]) -> list[str]:
 
 
 def variants_x_scenes(summary: pd.DataFrame, metric: str, variants: list[str], scenes: list[str],
-                      labels: dict[str, str], study: str) -> Table:
+                      labels: dict[str, str], study: str, unranked: tuple[str, ...] = ()) -> Table:
     cols = _columns(scenes)
     table = Table(f"{pretty(metric)}", "Variant", [labels.get(c, c) for c in cols], label=f"tab:{study}-{metric}")
     grid = [[_cell(summary, v, c, metric) for c in cols] for v in variants]
+    ranked = [row for v, row in zip(variants, grid) if v not in unranked]
     for j in range(len(cols)):
-        rank_column([row[j] for row in grid], lower_is_better(metric))
+        rank_column([row[j] for row in ranked], lower_is_better(metric))
     table.rows = list(zip(variants, grid))
     return table
 

@@ -215,7 +215,7 @@ def parse_study(raw: Any, path: Path, sets: dict[str, Any] | None = None) -> Stu
         baseline=f.baseline,
         base_seed=f.base_seed,
         metrics=tuple(f.metrics),
-        table=TableSpec(layout=f.table.layout, metrics=tuple(f.table.metrics)),
+        table=TableSpec(layout=f.table.layout, metrics=tuple(f.table.metrics), unranked=tuple(f.table.unranked)),
         plots=tuple(f.plots),
         diagnostics=tuple(f.diagnostics),
         profiles=profiles,

@@ -42,7 +42,7 @@ class Metric:
 
     @property
     def title(self) -> str:
-        """The label with its direction arrow (``PSNR ↑``)."""
+        """The label with its direction arrow (``PSNR (dB) ↑``)."""
         text = self.label or self.name
         return text if self.better == NEITHER else f"{text} {'↓' if self.better == LOWER else '↑'}"
 
@@ -92,7 +92,7 @@ def decimals(name: str) -> int:
 
 
 def title(name: str) -> str:
-    """``PSNR ↑``: label and direction arrow."""
+    """``PSNR (dB) ↑``: label and direction arrow."""
     return lookup(name).title
 
 
@@ -106,7 +106,7 @@ def lower_is_better(name: str) -> bool:
 
 # --- the metrics of ftgspp's trainer, evaluation and diagnostics ---------------------------
 for _m in (
-    Metric("psnr", "PSNR", 2),
+    Metric("psnr", "PSNR (dB)", 2),
     Metric("ssim1", "SSIM (data range 1)", 4),
     Metric("ssim2", "SSIM (data range 2)", 4),
     Metric("dssim1", "DSSIM (data range 1)", 4, LOWER),

@@ -113,6 +113,7 @@ class TableSpec:
 
     layout: str = "variants_x_scenes"
     metrics: tuple[str, ...] = ("psnr",)  # fnmatch patterns (e.g. lpips_*)
+    unranked: tuple[str, ...] = ()  # variants shown but never ranked (hardware controls, not methods)
 
 
 @dataclass(frozen=True)

@@ -68,6 +68,7 @@ class ProfileFile:
 class TableFile:
     layout: str = "variants_x_scenes"
     metrics: List[str] = field(default_factory=lambda: ["psnr"])
+    unranked: List[str] = field(default_factory=list)  # variants shown but never marked best (e.g. controls)
 
 
 @dataclass

@@ -32,7 +32,7 @@ def sharp_train(cfg, out_dir, tracker):
 
 
 def test_lookup_knows_exact_names_families_and_unknown_names() -> None:
-    assert (metrics.title("psnr"), metrics.decimals("psnr")) == ("PSNR ↑", 2)
+    assert (metrics.title("psnr"), metrics.decimals("psnr")) == ("PSNR (dB) ↑", 2)
     assert metrics.title("lpips_alex") == "LPIPS-Alex ([-1,1] input) ↓"
     assert (metrics.decimals("lpips_squeeze"), metrics.lower_is_better("lpips_squeeze")) == (4, True)
     assert metrics.title("gap_ssim") == "SSIM: data range 2 − 1"  # a difference has no better side

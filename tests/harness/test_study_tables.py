@@ -52,6 +52,15 @@ def test_ties_share_the_best_rank_and_two_rows_mark_no_second() -> None:
     assert [c.rank for c in cells] == [1, 0]
 
 
+def test_leaders_that_runs_cannot_tell_apart_are_not_marked() -> None:
+    close = [Cell(30.0, 0.5, n=5), Cell(29.9, 0.5, n=5), Cell(28.0, 0.5, n=5)]  # Welch p = 0.76 for the leaders
+    rank_column(close, lower_better=False)
+    assert [c.rank for c in close] == [0, 0, 0]
+    apart = [Cell(31.0, 0.1, n=5), Cell(29.9, 0.5, n=5), Cell(29.8, 0.5, n=5)]  # best clear, second not
+    rank_column(apart, lower_better=False)
+    assert [c.rank for c in apart] == [1, 0, 0]
+
+
 def _balanced(text: str) -> bool:
     depth = 0
     for ch in re.sub(r"\\[{}]", "", text):
