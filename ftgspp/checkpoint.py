@@ -43,7 +43,7 @@ def save_model(model: FreeTimeGaussians, cc: ColorCorrection | None, out_dir: Pa
     torch.save({k: v.detach().cpu() for k, v in model.params.items()}, out_dir / GAUSSIANS)
     if cc is not None:
         np.save(out_dir / COLOR_MATRICES, cc.matrices().cpu().numpy())
-        np.save(out_dir / COLOR_BIAS, cc.bias.detach().cpu().numpy())
+        np.save(out_dir / COLOR_BIAS, cc.biases().cpu().numpy())
 
 
 def load_run(run_dir: str | Path, device: str = "cpu") -> tuple[FreeTimeGaussians, TrainConfig]:

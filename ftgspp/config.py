@@ -37,6 +37,10 @@ class ModelConfig:
     gate_init: float = -1.0
     color_correction: bool = False
     cc_start_iter: int = 3_000
+    # the colour-correction gauge: "free" (the official code) or "mean_identity" (the mean of the
+    # per-camera transforms pinned to the identity, so they cannot drift together away from the
+    # uncorrected held-out camera)
+    cc_gauge: str = "free"
 
 
 @dataclass
@@ -94,6 +98,7 @@ class LearningRates:
     cc: float = 1e-3
     means_final_ratio: float = 0.01  # exponential decay of means and velocity over training
     scale: float = 1.0  # global multiplier (stability studies)
+    cc_scaled: bool = True  # whether ``scale`` multiplies the colour correction's rate too
 
 
 @dataclass

@@ -195,6 +195,22 @@ def _psnr(p: Tensor, g: Tensor, _: Mapping[str, torch.nn.Module]) -> Tensor:
     return psnr(p.double(), g.double())
 
 
+def colour_aligned(pred: Tensor, gt: Tensor) -> Tensor:
+    """``pred`` after the least-squares affine colour map onto ``gt`` (per image of the batch):
+    ``[pred, 1] A`` with ``A`` [4, 3] minimising ‖[pred, 1] A − gt‖², clamped to [0, 1].
+    A render that differs from the ground truth by a global colour transform scores as if it
+    did not (the colour-corrected metrics some 3DGS evaluations offer). [B, H, W, 3] -> same."""
+    x = torch.cat([pred.reshape(pred.shape[0], -1, 3), torch.ones_like(pred[..., :1]).reshape(pred.shape[0], -1, 1)],
+                  dim=-1)  # [B, P, 4]
+    y = gt.reshape(gt.shape[0], -1, 3)
+    a = torch.linalg.lstsq(x, y).solution  # [B, 4, 3]
+    return (x @ a).clamp(0, 1).reshape(pred.shape)
+
+
+def _psnr_aligned(p: Tensor, g: Tensor, _: Mapping[str, torch.nn.Module]) -> Tensor:
+    return psnr(colour_aligned(p.double(), g.double()), g.double())
+
+
 def _ssim(p: Tensor, g: Tensor, _: Mapping[str, torch.nn.Module], data_range: float) -> Tensor:
     return ssim(p.double(), g.double(), data_range)
 
@@ -222,6 +238,7 @@ def _lpips(p: Tensor, g: Tensor, models: Mapping[str, torch.nn.Module], net: str
 _SSIM_DESC = "11x11 Gaussian window, sigma 1.5, data range {}"
 METRICS: dict[str, Metric] = {
     "psnr": Metric(_psnr, "dB, data range 1"),
+    "psnr_cc": Metric(_psnr_aligned, "dB, after a least-squares affine colour map of the render onto the ground truth"),
     "ssim1": Metric(partial(_ssim, data_range=1.0), _SSIM_DESC.format(1)),
     "ssim2": Metric(partial(_ssim, data_range=2.0), _SSIM_DESC.format(2)),
     "dssim1": Metric(partial(_dssim, data_range=1.0), "(1 - ssim1) / 2"),

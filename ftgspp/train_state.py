@@ -73,7 +73,7 @@ def make_optimizer(
         lr = lrs[name] * cfg.lr.scale * (extent if name in EXTENT_SCALED else 1.0)
         groups.append({"params": [p], "lr": lr, "initial_lr": lr, "name": name, "decays": name in EXTENT_SCALED})
     if cc is not None:
-        lr = cfg.lr.cc * cfg.lr.scale
+        lr = cfg.lr.cc * (cfg.lr.scale if cfg.lr.cc_scaled else 1.0)
         groups.append({"params": list(cc.parameters()), "lr": lr, "initial_lr": lr, "name": "cc", "decays": False})
     return torch.optim.Adam(groups, eps=1e-15, fused=True)
 
@@ -129,7 +129,7 @@ class TrainState:
         """A fresh run: initialised Gaussians, identity colour correction, seeded generators."""
         relocator = Relocator(cfg.strategy)  # validates the strategy before the (slow) init
         model = build_model(cfg, scene, device)
-        cc = ColorCorrection(len(scene.train_ids), device) if cfg.model.color_correction else None
+        cc = ColorCorrection(len(scene.train_ids), device, cfg.model.cc_gauge) if cfg.model.color_correction else None
         extent = scene_extent(scene)
         return cls(
             model=model,

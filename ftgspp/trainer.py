@@ -112,6 +112,9 @@ def check_config(cfg: TrainConfig) -> None:
     if cfg.determinism not in MODES:
         raise InputError("determinism", f"unknown mode '{cfg.determinism}' (choose from {', '.join(MODES)})")
     Relocator(cfg.strategy)  # unknown relocation policy or clamp rule
+    if cfg.model.cc_gauge not in ColorCorrection.GAUGES:
+        raise InputError("model.cc_gauge", f"unknown gauge '{cfg.model.cc_gauge}' (choose from"
+                         f" {', '.join(ColorCorrection.GAUGES)})")
     if cfg.backend not in BACKENDS:
         raise InputError("backend", f"unknown backend '{cfg.backend}' (choose from {', '.join(BACKENDS)})")
 
@@ -233,7 +236,10 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
             psnr = -10.0 * math.log10(max(mse, 1e-12))
             rate = (step - start) / max(time.perf_counter() - t_session, 1e-9)
             bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{psnr:.2f}", its=f"{rate:.1f}")
-            tracker.log_metrics({"loss": loss.item(), "l1": terms["l1"].item(), "train_psnr": psnr}, step=step)
+            logged = {"loss": loss.item(), "l1": terms["l1"].item(), "train_psnr": psnr}
+            if st.cc is not None:  # a colour-gauge drift shows here before the held-out PSNR drops
+                logged["cc_mean_delta"], logged["cc_mean_bias"] = st.cc.mean_transform()
+            tracker.log_metrics(logged, step=step)
         if step % cfg.checkpoint_every == 0 and step < cfg.iterations:
             st.save(out_dir / CHECKPOINT)
     bar.close()

@@ -107,6 +107,10 @@ def lower_is_better(name: str) -> bool:
 # --- the metrics of ftgspp's trainer, evaluation and diagnostics ---------------------------
 for _m in (
     Metric("psnr", "PSNR (dB)", 2),
+    Metric("psnr_cc", "PSNR colour-aligned (dB)", 2),
+    Metric("train_psnr", "training-view PSNR (dB)", 2),
+    Metric("cc_mean_delta", "‖mean ΔM‖ of the colour transforms", 4, NEITHER),
+    Metric("cc_mean_bias", "‖mean b‖ of the colour transforms", 4, NEITHER),
     Metric("ssim1", "SSIM (data range 1)", 4),
     Metric("ssim2", "SSIM (data range 2)", 4),
     Metric("dssim1", "DSSIM (data range 1)", 4, LOWER),
