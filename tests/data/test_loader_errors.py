@@ -126,7 +126,14 @@ EASYVOLCAP_BAD = {
     "range past images": (lambda r: None, dict(frame_end=9), "000006.png.*6 frames.*needs 9"),
     "unknown test camera": (lambda r: None, dict(test_cameras=["cam07"]), "data.test_cameras.*cam07"),
     "bad scene.json": (lambda r: (r / "scene.json").write_text("{fps: "), {}, "scene.json"),
+    "unsupported distortion": (lambda r: _replace_entry(r / "intri.yml", "D_01", np.full((1, 6), 0.01)), {},
+                               "intri.yml: 'D_01' has 6 values, expected 4 or 5 or 8 or 12 or 14 .*radial-tangential"),
 }
+
+
+def _replace_entry(path: Path, key: str, value: np.ndarray) -> None:
+    _drop_line(path, f"{key}:")
+    path.write_text(path.read_text() + fx._yml_matrix(key, value))
 
 
 @pytest.mark.parametrize("case", list(EASYVOLCAP_BAD))
