@@ -273,7 +273,7 @@ def test_cache_dir_option_and_stale_cache(tmp_path):
     assert _load(a, cache_dir=str(tmp_path / "cache")).cache_dir != sa.cache_dir
 
 
-# --- ENeRF-Outdoor -----------------------------------------------------------------------------------
+# --- ENeRF-Outdoor, and the dataset configs --------------------------------------------------------
 
 
 def test_enerf_outdoor_layout_with_distortion_loads(tmp_path):
@@ -295,3 +295,14 @@ def test_enerf_outdoor_layout_with_distortion_loads(tmp_path):
     _assert_markers(scene)
     assert _load(root, test_cameras=["03"]).test_ids == [3]
 
+
+@pytest.mark.parametrize(
+    "group, want",
+    [("immersive", dict(format="immersive", test_cameras=["camera_0001"], frame_end=50, downsample=2)),
+     ("enerf_outdoor", dict(format="easyvolcap", test_cameras=["17"], frame_end=150))],
+)
+def test_dataset_configs_compose(group, want):
+    from harness.spec.schema import compose, to_train_config
+
+    cfg = to_train_config(compose([f"data={group}", "data.path=/data/x"])).data
+    assert {k: getattr(cfg, k) for k in want} == want
