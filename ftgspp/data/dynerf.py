@@ -82,7 +82,7 @@ def read_dynerf(root: Path, drop_cameras: Sequence[str] = ()) -> SceneSource:
     poses_bounds = poses_bounds[keep]
     names = [names[i] for i in keep]
 
-    probes = [_probe(v) for v in videos]  # (frame count, width, height, fps)
+    probes = [probe_video(v) for v in videos]  # (frame count, width, height, fps)
     sizes = []
     for video, row, (_, width, height, _) in zip(videos, poses_bounds, probes):
         h_file, w_file = row[4], row[9]
@@ -137,7 +137,7 @@ def _read_poses_bounds(path: Path) -> np.ndarray:
     return pb
 
 
-def _probe(video: Path) -> tuple[int, int, int, float]:
+def probe_video(video: Path) -> tuple[int, int, int, float]:
     """``(frame count, width, height, fps)`` from the container, without decoding."""
     cap = cv2.VideoCapture(str(video))
     try:

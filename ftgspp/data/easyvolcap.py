@@ -9,11 +9,25 @@
   ``[0, count)`` of a camera are the ones present without a gap from 0.
 
 Both yml files are OpenCV FileStorage YAML (``%YAML:1.0``, ``!!opencv-matrix``) and are
-read with ``cv2.FileStorage``. Frames of a camera with non-zero distortion are undistorted
-on decode (``cv2.remap`` with maps from ``cv2.initUndistortRectifyMap``, bilinear, the same
-as ``cv2.undistort``) keeping the same K, so the returned ``Camera`` is a pinhole with
-``dist = None``. fps: an explicit value, else ``fps`` from the first of ``scene.json``,
-``metadata.json``, ``gt/scene.json`` (synthetic scenes) that has one, else 30.
+read with ``cv2.FileStorage``. fps: an explicit value, else ``fps`` from the first of
+``scene.json``, ``metadata.json``, ``gt/scene.json`` (synthetic scenes) that has one, else 30.
+
+Distortion: OpenCV's radial-tangential model with 4, 5, 8, 12 or 14 coefficients (what
+``cv2.initUndistortRectifyMap`` takes); any other count is refused, and the yml has no field
+for a fisheye model (undistort such footage first). Frames of a camera with non-zero
+distortion are undistorted on decode (``cv2.remap`` with maps from
+``cv2.initUndistortRectifyMap``, bilinear, the same as ``cv2.undistort``) keeping the same K,
+so the returned ``Camera`` is a pinhole with ``dist = None``. Keeping K is what ENeRF's own
+ENeRF-Outdoor reader does (``cv2.undistort(img, K, D)``, zju3dv/ENeRF
+``lib/datasets/enerf_outdoor/enerf.py``); EasyVolcap's readers default to ``dist_opt_K``, a new
+K from ``cv2.getOptimalNewCameraMatrix(..., alpha=0)`` that crops the border instead.
+
+ENeRF-Outdoor (Lin et al. 2022) as released: ``<scene>/intri.yml`` and ``extri.yml`` written
+by EasyMocap (``names``, ``K_<n>``, ``dist_<n>`` [1x5], ``R_<n>`` and ``Rot_<n>``, ``T_<n>``;
+no image size), 18 cameras ``00`` ... ``17`` with ``images/<n>/<frame:06d>.jpg`` (1920x1080),
+and folders this reader ignores (``bkgd/``, ``bgmtv2/``, ``vhull/``, ``background.ply``). It
+ships no frame rate (30 unless ``data.fps`` says otherwise). Its held-out camera and frame
+range are not in the data: ``conf/data/enerf_outdoor.yaml`` and ``docs/datasets.md``.
 
 Use ``ftgspp.data.load.load_scene``; ``read_easyvolcap`` is its EasyVolcap half.
 """
@@ -35,6 +49,7 @@ from ftgspp.errors import InputError
 
 DEFAULT_FPS = 30.0
 IMAGE_EXTS = (".jpg", ".jpeg", ".png")
+DIST_SIZES = (4, 5, 8, 12, 14)  # coefficient counts cv2.initUndistortRectifyMap accepts
 METADATA_FILES = ("scene.json", "metadata.json", "gt/scene.json")  # gt/: our synthetic scenes
 
 
@@ -66,7 +81,7 @@ def read_easyvolcap(root: Path, drop_cameras: Sequence[str] = (), fps: float | N
         if width is None or height is None:
             if 0 not in files:
                 raise InputError(root / "images" / name, f"no frame 000000 to read the size of camera {name} from")
-            height, width = _read_image(files[0]).shape[:2]
+            height, width = read_image(files[0]).shape[:2]
         cameras.append(Camera(name=name, K=K, R=R, T=T, width=width, height=height))
     dists = [d if np.any(d != 0) else None for (_, d, *_rest) in calib]
 
@@ -127,13 +142,13 @@ def _read_array(fs: cv2.FileStorage, key: str) -> np.ndarray | None:
     return None if mat is None else np.asarray(mat, dtype=np.float64)
 
 
-def _require(fs: cv2.FileStorage, path: Path, key: str, sizes: tuple[int, ...]) -> np.ndarray:
+def _require(fs: cv2.FileStorage, path: Path, key: str, sizes: tuple[int, ...], what: str = "") -> np.ndarray:
     """Array under ``key`` with one of the element counts ``sizes``, finite; else InputError."""
     arr = _read_array(fs, key)
     if arr is None:
         raise InputError(path, f"missing key '{key}'")
     if arr.size not in sizes:
-        raise InputError(path, f"'{key}' has {arr.size} values, expected {' or '.join(map(str, sizes))}")
+        raise InputError(path, f"'{key}' has {arr.size} values, expected {' or '.join(map(str, sizes))}{what}")
     if not np.isfinite(arr).all():
         raise InputError(path, f"'{key}' contains NaN or Inf")
     return arr
@@ -149,7 +164,7 @@ def _read_calibration(
     dist_key = f"D_{name}" if _read_array(intri, f"D_{name}") is not None else f"dist_{name}"
     dist = np.zeros(5)
     if _read_array(intri, dist_key) is not None:
-        dist = _require(intri, intri_path, dist_key, (4, 5, 8, 12, 14)).reshape(-1)
+        dist = _require(intri, intri_path, dist_key, DIST_SIZES, " (OpenCV's radial-tangential model)").reshape(-1)
     size = []
     for key in (f"W_{name}", f"H_{name}"):
         arr = _read_array(intri, key)
@@ -179,7 +194,7 @@ def _list_images(root: Path, name: str) -> dict[int, Path]:
     return files
 
 
-def _read_image(path: Path) -> np.ndarray:
+def read_image(path: Path) -> np.ndarray:
     """uint8 ``[H, W, 3]`` BGR, or InputError."""
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
@@ -197,7 +212,7 @@ def _read_frames(
     for fid in frame_ids:
         fid = int(fid)
         path = files.get(fid, folder / f"{fid:06d}.jpg")
-        bgr = _read_image(path)
+        bgr = read_image(path)
         if bgr.shape[:2] != (cam.height, cam.width):
             raise InputError(path, f"is {bgr.shape[1]}x{bgr.shape[0]}, camera {cam.name} is {cam.width}x{cam.height}")
         if maps is not None:

@@ -1,14 +1,16 @@
-"""Load a multi-view video scene (DyNeRF or EasyVolcap layout) into one ``Scene``.
+"""Load a multi-view video scene (DyNeRF, EasyVolcap or Google Immersive layout) into one ``Scene``.
 
     from ftgspp.config import DataConfig
     from ftgspp.data.load import load_scene
     scene = load_scene(DataConfig(path="data/coffee_martini", drop_cameras=["cam13"]))
     frames = scene.frames(0)  # uint8 [F, H, W, 3] RGB, decoded once, then cached on disk
 
-The format modules (``dynerf.py``, ``easyvolcap.py``) only read their own files into a
-``SceneSource``: full-resolution cameras, how many frames each camera has, and a frame
-iterator. This module does what both layouts share: format detection, the frame range,
-downsampling, the train/test split and where decoded frames are cached. Loading reads
+The format modules (``dynerf.py``, ``easyvolcap.py``, ``immersive.py``) only read their own
+files into a ``SceneSource``: full-resolution (undistorted) cameras, how many frames each
+camera has, and a frame iterator. This module does what the layouts share: format detection,
+the frame range, downsampling, the train/test split and where decoded frames (and Immersive's
+undistortion maps, in ``<cache>/undistort/``) are cached. ``docs/datasets.md`` lists the
+datasets, their layouts and evaluation conventions. Loading reads
 metadata only; frames are decoded on first use. Every problem with the input is raised
 as one ``InputError`` naming the file (or config key) and what is wrong.
 """
@@ -25,16 +27,17 @@ import numpy as np
 from ftgspp.config import DataConfig
 from ftgspp.data.dynerf import read_dynerf
 from ftgspp.data.easyvolcap import read_easyvolcap
+from ftgspp.data.immersive import MODELS_FILE, read_immersive
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.data.source import SceneSource, match_camera
 from ftgspp.errors import InputError
 
-FORMATS = ("dynerf", "easyvolcap")
+FORMATS = ("dynerf", "easyvolcap", "immersive")
 DEFAULT_TEST_CAMERAS = ("cam00",)
 
 
 def detect_format(path: str | Path) -> str:
-    """The layout of scene folder ``path``: ``"dynerf"`` or ``"easyvolcap"``."""
+    """The layout of scene folder ``path``: ``"dynerf"``, ``"easyvolcap"`` or ``"immersive"``."""
     root = Path(path)
     if not root.is_dir():
         raise InputError(root, "scene folder not found")
@@ -42,10 +45,12 @@ def detect_format(path: str | Path) -> str:
         return "dynerf"
     if (root / "intri.yml").is_file() and (root / "extri.yml").is_file():
         return "easyvolcap"
+    if (root / MODELS_FILE).is_file():
+        return "immersive"
     raise InputError(
         root,
-        "unknown scene layout: expected poses_bounds.npy + cam*.mp4 (DyNeRF) "
-        "or intri.yml + extri.yml + images/ (EasyVolcap)",
+        "unknown scene layout: expected poses_bounds.npy + cam*.mp4 (DyNeRF), "
+        "intri.yml + extri.yml + images/ (EasyVolcap) or models.json + camera_*.mp4 (Immersive)",
     )
 
 
@@ -94,6 +99,9 @@ def load_scene(cfg: DataConfig) -> Scene:
 def _read_source(fmt: str, root: Path, cfg: DataConfig) -> SceneSource:
     if fmt == "dynerf":
         return read_dynerf(root, drop_cameras=cfg.drop_cameras)
+    if fmt == "immersive":
+        map_dir = _cache_base(cfg, root) / "undistort"
+        return read_immersive(root, drop_cameras=cfg.drop_cameras, fps=cfg.fps, map_dir=map_dir)
     return read_easyvolcap(root, drop_cameras=cfg.drop_cameras, fps=getattr(cfg, "fps", None))
 
 
@@ -174,9 +182,14 @@ def _cache_dir(cfg: DataConfig, root: Path, name: str, fmt: str, source: SceneSo
     files, so a regenerated scene or another scene sharing ``data.cache_dir`` never reads
     stale frames (``Scene``'s cache key only holds camera name, size and frame range).
     """
-    base = Path(cfg.cache_dir).expanduser() if cfg.cache_dir else root / ".ftgspp_cache"
+    base = _cache_base(cfg, root)
     h = hashlib.sha1(f"{root.resolve()}|{fmt}".encode())
     for f in source.fingerprint_files:
         st = f.stat()
         h.update(f"|{f.name}:{st.st_size}:{st.st_mtime_ns}".encode())
     return base / f"{name}-{h.hexdigest()[:10]}"
+
+
+def _cache_base(cfg: DataConfig, root: Path) -> Path:
+    """``data.cache_dir``, else ``<scene>/.ftgspp_cache``."""
+    return Path(cfg.cache_dir).expanduser() if cfg.cache_dir else root / ".ftgspp_cache"

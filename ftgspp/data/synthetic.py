@@ -5,8 +5,9 @@ far backdrop, two static props) and two moving textured spheres -- one on a stra
 line, one on a circular arc while spinning -- seen by an arc of pinhole cameras
 (``cam00`` in the middle is the test view). Each camera gets its own affine colour
 shift and sensor noise, like a real rig. Output is written in the DyNeRF or the
-EasyVolcap layout, plus ground truth in ``<out>/gt/`` (depth, scene flow, object
-masks, trajectories, colour transforms) so that motion can be scored.
+EasyVolcap layout, or through a lens in the Immersive (fisheye) or ENeRF-Outdoor (distorted
+EasyVolcap) layout (``synthetic_layouts``), plus ground truth in ``<out>/gt/`` (depth, scene
+flow, object masks, trajectories, colour transforms) so that motion can be scored.
 
 Run::
 
@@ -26,10 +27,12 @@ import sys
 import time
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
+from typing import Callable
 
 import cv2
 import numpy as np
 
+from ftgspp.data import synthetic_layouts as layouts
 from ftgspp.data.scene import Camera
 from ftgspp.data.synthetic_geometry import ArcPath, Box, LinearPath, MovingSphere, Quad, SceneContent
 from ftgspp.data.synthetic_raycast import cast_objects, cast_static
@@ -37,7 +40,7 @@ from ftgspp.data.synthetic_rig import make_rig, pixel_rays
 from ftgspp.data.synthetic_textures import Texture, make_texture
 from ftgspp.errors import InputError
 
-SCENE_LAYOUTS = ("dynerf", "easyvolcap")
+SCENE_LAYOUTS = ("dynerf", "easyvolcap", *layouts.LENS_LAYOUTS)
 # Video codecs for the DyNeRF layout (all in .mp4 containers that OpenCV's bundled FFmpeg
 # reads back). mp4v (MPEG-4 part 2, yuv420p at OpenCV's fixed ~1 bit/pixel) loses ~7 dB on
 # these textures (decoded-vs-source PSNR ~33 dB), so the default is lossless FFV1.
@@ -173,10 +176,15 @@ class CameraRender:
 
 
 def render_camera(content: SceneContent, cam: Camera, cfg: SynthConfig, transform: tuple[np.ndarray, np.ndarray],
-                  cam_index: int) -> CameraRender:
-    """Ray-cast all frames of one camera, then apply its colour shift and noise."""
+                  cam_index: int, rays: Callable[[int], np.ndarray] | None = None) -> CameraRender:
+    """Ray-cast all frames of one camera, then apply its colour shift and noise.
+
+    ``rays(s)`` is the camera's world ray grid ``[H*s, W*s, 3]`` (unit camera-z) through a
+    lens (``synthetic_layouts.Lens.rays``); default: the pinhole ``pixel_rays``.
+    """
     H, W, s = cam.height, cam.width, cfg.supersample
-    sub_dirs, cen_dirs = pixel_rays(cam, s), pixel_rays(cam, 1)
+    lens = rays is not None
+    sub_dirs, cen_dirs = (rays(s), rays(1)) if lens else (pixel_rays(cam, s), pixel_rays(cam, 1))
     sub_bg = cast_static(content, cam.center, sub_dirs)  # RGB only
     sub_bg.label = sub_bg.flow = None
     cen_bg = cast_static(content, cam.center, cen_dirs, colour=False)  # ground truth only
@@ -187,13 +195,13 @@ def render_camera(content: SceneContent, cam: Camera, cfg: SynthConfig, transfor
                        np.empty((F, H, W, 3), np.float16), np.empty((F, H, W), np.uint8))
     for f in range(F):
         t = f / cfg.fps
-        rgb = cast_objects(content, cam, sub_dirs, s, t, sub_bg).rgb
+        rgb = cast_objects(content, cam, sub_dirs, s, t, sub_bg, box_from_rays=lens).rgb
         img = cv2.resize(rgb.astype(np.float32), (W, H), interpolation=cv2.INTER_AREA)  # s x s box average
         img = img @ M + transform[1]
         if cfg.noise > 0:
             img = img + noise_rng.normal(0.0, cfg.noise, img.shape)
         out.frames[f] = np.round(np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
-        gt = cast_objects(content, cam, cen_dirs, 1, t, cen_bg)
+        gt = cast_objects(content, cam, cen_dirs, 1, t, cen_bg, box_from_rays=lens)
         out.depth[f] = gt.depth
         out.flow3d[f] = gt.flow
         out.objects[f] = gt.label
@@ -279,19 +287,22 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
 
 def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", seed: int = 0,
              overwrite: bool = False, verbose: bool = False, **overrides) -> Path:
-    """Render a synthetic scene into ``out`` (``layout`` dynerf | easyvolcap) and return ``out``.
+    """Render a synthetic scene into ``out`` (``layout`` in ``SCENE_LAYOUTS``) and return ``out``.
 
     ``overrides`` are ``SynthConfig`` fields (n_cameras, n_frames, width, height, color_shift,
-    noise, speed, ...). Ground truth goes to ``out/gt``.
+    noise, speed, ...); a lens layout's ``LAYOUT_DEFAULTS`` come first. Ground truth goes to
+    ``out/gt`` (for the undistorted cameras in the lens layouts).
     """
     if layout not in SCENE_LAYOUTS:
         raise InputError("--layout", f"unknown layout '{layout}' (choose from {', '.join(SCENE_LAYOUTS)})")
-    cfg = resolve_config(preset, seed, **overrides)
+    cfg = resolve_config(preset, seed, **{**layouts.LAYOUT_DEFAULTS.get(layout, {}), **overrides})
     out = Path(out)
     _prepare_out(out, overwrite)
     say = print if verbose else (lambda *a, **k: None)
     start = time.perf_counter()
     content, cams = build_scene(cfg)
+    lenses = layouts.make_lenses(layout, cams) if layout in layouts.LENS_LAYOUTS else []
+    cams = [lens.camera for lens in lenses] or cams
     transforms = color_transforms(cfg, len(cams))
     gt = out / "gt"
     for sub in ("depth", "flow3d", "objects"):
@@ -299,7 +310,11 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
     bounds = []
     for ci, cam in enumerate(cams):
         r = render_camera(content, cam, cfg, transforms[ci], ci)
-        if layout == "dynerf":
+        if lenses:
+            frames = render_camera(content, cam, cfg, transforms[ci], ci, rays=lenses[ci].rays).frames
+            layouts.write_layout_frames(out, layout, cam, lenses[ci].mask(frames),
+                                lambda path, frames: write_video(path, frames, cfg.fps, cfg.codec))
+        elif layout == "dynerf":
             write_video(out / f"{cam.name}.mp4", r.frames, cfg.fps, cfg.codec)
         else:
             img_dir = out / "images" / cam.name
@@ -313,7 +328,9 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
         say(f"  {cam.name}: {cfg.n_frames} frames, depth {bounds[-1][0]:.2f}..{bounds[-1][1]:.2f}"
             f" ({time.perf_counter() - start:.1f} s)")
     order = sorted(range(len(cams)), key=lambda k: cams[k].name)  # rows follow the sorted videos
-    if layout == "dynerf":
+    if lenses:
+        layouts.write_layout_cameras(out, layout, [lenses[k] for k in order])
+    elif layout == "dynerf":
         rows = [poses_bounds_row(cams[k], *bounds[k]) for k in order]
         np.save(out / "poses_bounds.npy", np.stack(rows).astype(np.float64))
     else:
@@ -322,9 +339,10 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
         preset=cfg.preset, seed=cfg.seed, layout=layout, fps=cfg.fps, n_frames=cfg.n_frames,
         params={k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
         world="x right, y down, z forward (into the room); cameras: OpenCV, x_cam = R X + T",
-        camera_names=[c.name for c in cams], test_cameras=["cam00"],
+        camera_names=[c.name for c in cams], test_cameras=[cams[0].name],
         cameras=[dict(name=c.name, K=c.K.tolist(), R=c.R.tolist(), T=c.T.tolist(), width=c.width,
-                      height=c.height, near=bounds[k][0], far=bounds[k][1]) for k, c in enumerate(cams)],
+                      height=c.height, near=bounds[k][0], far=bounds[k][1],
+                      **(dict(lens=layouts.lens_metadata(lenses[k])) if lenses else {})) for k, c in enumerate(cams)],
         files=dict(depth="depth/<cam>.npy float32 [F,H,W] camera z-depth at pixel centres",
                    flow3d="flow3d/<cam>.npy float16 [F,H,W,3] world velocity of the visible point, units/s",
                    objects="objects/<cam>.npy uint8 [F,H,W] 0 = background, k = label of object k"),
@@ -346,13 +364,16 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="ftgspp synth", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, help="output folder (must be empty or absent)")
-    p.add_argument("--layout", default="dynerf", help="dynerf (camNN.mp4 + poses_bounds.npy) or easyvolcap")
+    p.add_argument("--layout", default="dynerf", help="dynerf (camNN.mp4 + poses_bounds.npy), easyvolcap, "
+                   "immersive (fisheye videos + models.json) or enerf_outdoor (easyvolcap with distortion)")
     p.add_argument("--preset", default="studio", help=f"one of {', '.join(PRESETS)}")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--cameras", type=int, dest="n_cameras")
     p.add_argument("--frames", type=int, dest="n_frames")
     p.add_argument("--width", type=int)
     p.add_argument("--height", type=int)
+    p.add_argument("--hfov", type=float, dest="hfov_deg", help="horizontal field of view of the (undistorted) "
+                   "cameras in degrees (default 55; immersive: 152)")
     p.add_argument("--color-shift", type=float, dest="color_shift", help="colour-shift strength (1 = default)")
     p.add_argument("--noise", type=float, help="sensor noise sigma (default 0.01)")
     p.add_argument("--speed", type=float, help="motion speed multiplier (default 1)")
@@ -364,7 +385,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """``ftgspp synth`` entry point; returns the exit status."""
     args = _parser().parse_args(argv)
-    knobs = ("n_cameras", "n_frames", "width", "height", "color_shift", "noise", "speed", "codec")
+    knobs = ("n_cameras", "n_frames", "width", "height", "hfov_deg", "color_shift", "noise", "speed", "codec")
     overrides = {k: getattr(args, k) for k in knobs if getattr(args, k) is not None}
     try:
         generate(args.out, layout=args.layout, preset=args.preset, seed=args.seed,

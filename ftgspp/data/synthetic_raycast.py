@@ -72,18 +72,35 @@ def _screen_box(cam: Camera, centre: np.ndarray, radius: float, scale: int, shap
     return slice(r0, r1), slice(c0, c1)
 
 
+def _ray_box(origin: np.ndarray, dirs: np.ndarray, centre: np.ndarray, radius: float):
+    """Slices of the ray grid ``dirs [R, C, 3]`` whose rays can hit a sphere, or None."""
+    to_centre = centre - origin
+    dist = np.linalg.norm(to_centre)
+    if dist <= radius * 1.01:
+        return slice(0, dirs.shape[0]), slice(0, dirs.shape[1])  # the camera is (nearly) inside it
+    cos_ray = (dirs @ to_centre) / (np.linalg.norm(dirs, axis=-1) * dist)  # [R, C]
+    rows, cols = np.nonzero(cos_ray >= np.cos(np.arcsin(radius / dist)) - 1e-3)
+    if len(rows) == 0:
+        return None
+    return slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1)
+
+
 def cast_objects(content: SceneContent, cam: Camera, dirs: np.ndarray, scale: int, time: float,
-                 background: Hits) -> Hits:
+                 background: Hits, box_from_rays: bool = False) -> Hits:
     """Composite the moving objects at ``time`` (seconds) over ``background``.
 
     ``dirs [R, C, 3]`` is ``pixel_rays(cam, scale)``; each sphere is only tested against
-    the rays inside its projected bounding box.
+    the rays inside its projected bounding box. Rays through a lens (any grid of unit
+    camera-z rays from ``cam.center``): ``box_from_rays`` finds the box from the rays instead.
     """
     out = background.copy()
     origin = cam.center
     for obj in content.objects:
         c = obj.path.position(time)
-        box = _screen_box(cam, c, obj.radius, scale, dirs.shape[:2])
+        if box_from_rays:
+            box = _ray_box(origin, dirs, c, obj.radius)
+        else:
+            box = _screen_box(cam, c, obj.radius, scale, dirs.shape[:2])
         if box is None:
             continue
         d = dirs[box]  # [r, c, 3]

@@ -1,4 +1,5 @@
-"""Tiny scene writers for loader tests: DyNeRF and EasyVolcap folders with a known camera rig.
+"""Tiny scene writers for loader tests: DyNeRF and EasyVolcap folders with a known camera rig,
+and Immersive folders (``models.json`` + fisheye frames of a straight 3D edge).
 
 Every frame shows one bright Gaussian blob, drawn where the rig's OpenCV camera sees the
 moving 3D point ``marker_position(t)`` (``t`` = frame / fps, seconds), on a coloured
@@ -188,3 +189,83 @@ def write_easyvolcap(
 def write_scene(layout: str, root: Path, **kwargs) -> Path:
     """``write_dynerf`` or ``write_easyvolcap`` (``layout`` "dynerf" | "easyvolcap") with ``kwargs``."""
     return write_dynerf(root, **kwargs) if layout == "dynerf" else write_easyvolcap(root, **kwargs)
+
+
+# --- Google Immersive: models.json + fisheye frames ------------------------------------------------
+
+# The camera of the publisher's README (github.com/augmentedperception/deepview_video_dataset) and
+# its worked example: world point (0.5, 0.5, 10) lands on pixel README_PIXEL.
+README_VIEW = {
+    "name": "camera_0001",
+    "position": [0.003311238794086777, 0.000126384684934784, 0.42421246053630285],
+    "orientation": [-0.03295944563072383, 0.02964606619481096, -0.03337751007195316],
+    "focal_length": 1111.3638715594666,
+    "pixel_aspect_ratio": 1.0,
+    "principal_point": [1284.7296468363463, 925.4651609728676],
+    "height": 1920.0,
+    "width": 2560.0,
+    "radial_distortion": [0.0970525284520715, -0.01708587111009977, 0.0],
+    "projection_type": "fisheye",
+}
+README_POINT, README_PIXEL = (0.5, 0.5, 10.0), (1377.85525, 1017.61440)
+
+
+def immersive_view(name: str, center: Sequence[float], target: Sequence[float], scale: float = 1 / 16) -> dict:
+    """A ``models.json`` entry: the README camera's lens at ``scale`` x its resolution, looking at ``target``."""
+    cam = look_at_camera(name, center, target)
+    view = dict(README_VIEW, name=name, position=[float(v) for v in center],
+                orientation=cv2.Rodrigues(cam.R)[0].ravel().tolist())
+    for key in ("focal_length", "width", "height"):
+        view[key] = README_VIEW[key] * scale
+    view["principal_point"] = [(c + 0.5) * scale - 0.5 for c in README_VIEW["principal_point"]]
+    return view
+
+
+def fisheye_rays(view: dict, supersample: int = 1) -> np.ndarray:
+    """World ray directions ``[H*s, W*s, 3]`` of a view's (sub)pixels, by the README's lens model.
+
+    r / f = theta (1 + k1 theta^2 + k2 theta^4) is inverted with Newton steps (not OpenCV).
+    """
+    s, f = supersample, view["focal_length"]
+    k1, k2 = view["radial_distortion"][:2]
+    x = (np.arange(int(view["width"]) * s) + 0.5) / s - 0.5 - view["principal_point"][0]
+    y = (np.arange(int(view["height"]) * s) + 0.5) / s - 0.5 - view["principal_point"][1]
+    xx, yy = np.meshgrid(x / f, y / f)
+    rd = np.hypot(xx, yy)
+    theta = rd.copy()
+    for _ in range(12):
+        g = theta * (1 + k1 * theta**2 + k2 * theta**4) - rd
+        theta -= g / (1 + 3 * k1 * theta**2 + 5 * k2 * theta**4)
+    scale = np.sin(theta) / np.maximum(rd, 1e-12)
+    d_cam = np.stack([xx * scale, yy * scale, np.cos(theta)], -1)
+    R = cv2.Rodrigues(np.asarray(view["orientation"], dtype=np.float64))[0]
+    return d_cam @ R  # world = R^T d_cam
+
+
+def edge_frame(view: dict, point: Sequence[float], direction: Sequence[float], dark: float = 60.0,
+               bright: float = 200.0, supersample: int = 8) -> np.ndarray:
+    """uint8 RGB fisheye frame of the 3D line ``point + s direction``: ``dark`` on one side, ``bright``
+    on the other (the side of the plane through the camera centre and the line), antialiased."""
+    normal = np.cross(np.asarray(point) - np.asarray(view["position"]), np.asarray(direction))
+    side = (fisheye_rays(view, supersample) @ normal > 0).astype(np.float64)
+    h, w = int(view["height"]), int(view["width"])
+    frac = side.reshape(h, supersample, w, supersample).mean(axis=(1, 3))
+    grey = np.round(dark + (bright - dark) * frac).astype(np.uint8)
+    return np.repeat(grey[..., None], 3, axis=2)
+
+
+def write_immersive(root: Path, frames: dict[str, list[np.ndarray]], views: Sequence[dict], fps: float = 30.0,
+                    as_images: bool = False) -> Path:
+    """An Immersive folder: ``models.json`` + ``<name>.mp4`` (lossless FFV1), or ``<name>/<i>.png``."""
+    from ftgspp.data.synthetic import write_video as write_lossless
+
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "models.json").write_text(json.dumps(list(views), indent=1))
+    for name, images in frames.items():
+        if as_images:
+            (root / name).mkdir(exist_ok=True)
+            for i, img in enumerate(images):
+                assert cv2.imwrite(str(root / name / f"{i}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        else:
+            write_lossless(root / f"{name}.mp4", np.stack(images), fps)
+    return root

@@ -1,4 +1,5 @@
-"""Scene loaders on bad input: every broken file or option is one ``InputError`` naming it.
+"""Scene loaders on bad input: every broken file or option is one ``InputError`` naming it
+(DyNeRF, EasyVolcap, and Immersive's ``models.json``: one line naming the field, exit 2 from the CLI).
 
 Scenes are the tiny folders of ``fixtures.py``, broken one way at a time: before loading
 (wrong shapes, NaN, corrupt files, missing entries, bad options) and after loading, while
@@ -7,7 +8,10 @@ frames are decoded (files removed, truncated or resized). The message is one lin
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -126,7 +130,14 @@ EASYVOLCAP_BAD = {
     "range past images": (lambda r: None, dict(frame_end=9), "000006.png.*6 frames.*needs 9"),
     "unknown test camera": (lambda r: None, dict(test_cameras=["cam07"]), "data.test_cameras.*cam07"),
     "bad scene.json": (lambda r: (r / "scene.json").write_text("{fps: "), {}, "scene.json"),
+    "unsupported distortion": (lambda r: _replace_entry(r / "intri.yml", "D_01", np.full((1, 6), 0.01)), {},
+                               "intri.yml: 'D_01' has 6 values, expected 4 or 5 or 8 or 12 or 14 .*radial-tangential"),
 }
+
+
+def _replace_entry(path: Path, key: str, value: np.ndarray) -> None:
+    _drop_line(path, f"{key}:")
+    path.write_text(path.read_text() + fx._yml_matrix(key, value))
 
 
 @pytest.mark.parametrize("case", list(EASYVOLCAP_BAD))
@@ -167,3 +178,77 @@ def test_decode_failure_after_loading_raises_input_error(tmp_path, case):
     with pytest.raises(InputError, match=pattern):
         scene.frames(1)
     assert not list(scene.cache_dir.glob("*.npy"))  # nothing half-written to the cache
+
+
+# --- Google Immersive: models.json ---------------------------------------------------------------
+
+
+def _immersive(root: Path) -> Path:
+    views = [fx.immersive_view(f"camera_000{i}", (0.3 * i, 0.0, -4.0), (0, 0, 0), scale=1 / 80) for i in (1, 2)]
+    frames = {v["name"]: [np.full((24, 32, 3), 40 * k, np.uint8) for k in range(3)] for v in views}
+    return fx.write_immersive(root, frames, views)
+
+
+def _edit_models(root: Path, edit) -> None:
+    models = json.loads((root / "models.json").read_text())
+    edit(models)
+    (root / "models.json").write_text(json.dumps(models))
+
+
+def _set(index: int, **fields):
+    return lambda r: _edit_models(r, lambda m: m[index].update(fields))
+
+
+def _drop(index: int, field: str):
+    return lambda r: _edit_models(r, lambda m: m[index].pop(field))
+
+
+IMMERSIVE_BAD = {
+    "missing field": (_drop(0, "focal_length"), "camera_0001: missing field 'focal_length'"),
+    "missing position": (_drop(1, "position"), "camera_0002: missing field 'position'"),
+    "NaN principal point": (_set(0, principal_point=[float("nan"), 12.0]), "'principal_point' contains NaN"),
+    "Inf orientation": (_set(1, orientation=[0.0, float("inf"), 0.0]), "'orientation' contains NaN or Inf"),
+    "principal point of 3": (_set(0, principal_point=[16.0, 12.0, 1.0]), "'principal_point' must be a list of 2"),
+    "orientation as a matrix": (_set(0, orientation=np.eye(3).tolist()), "'orientation' must be numbers"),
+    "focal length as a list": (_set(0, focal_length=[10.0, 10.0]), "'focal_length' must be one number"),
+    "one radial term": (_set(0, radial_distortion=[0.1]), "'radial_distortion' must be a list of 2 or 3 or 4"),
+    "third radial term": (_set(0, radial_distortion=[0.1, 0.0, 0.3]), "'radial_distortion' terms after k1, k2"),
+    "unknown camera model": (_set(1, projection_type="equirectangular"), "'projection_type' 'equirectangular' is not"),
+    "pixel aspect ratio": (_set(0, pixel_aspect_ratio=1.2), "'pixel_aspect_ratio' 1.2 is not supported"),
+    "negative focal": (_set(0, focal_length=-3.0), "'focal_length' must be positive"),
+    "fractional width": (_set(0, width=31.5), "'width' must be a positive whole number"),
+    "boolean height": (_set(0, height=True), "'height' must be a number"),
+    "nameless camera": (_drop(0, "name"), "entry 0: 'name'"),
+    "camera listed twice": (_set(1, name="camera_0001"), "camera camera_0001 is listed twice"),
+    "entry not a dict": (lambda r: _edit_models(r, lambda m: m.append([1, 2])), "entry 2 is not a camera dict"),
+    "not a list": (lambda r: (r / "models.json").write_text('{"cameras": []}'), "non-empty JSON list"),
+    "not JSON": (lambda r: _corrupt_bytes(r / "models.json"), "models.json: cannot read as JSON"),
+    "camera without frames": (lambda r: (r / "camera_0002.mp4").unlink(), "camera_0002.mp4: .* no video"),
+    "video of another size": (
+        lambda r: fx.write_video(r / "camera_0001.mp4", [np.zeros((24, 40, 3), np.uint8)] * 3, 30.0),
+        "camera_0001.mp4: is 40x24 but models.json says 32x24",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(IMMERSIVE_BAD))
+def test_immersive_bad_input_raises_one_line_naming_the_field(tmp_path, case):
+    mutate, pattern = IMMERSIVE_BAD[case]
+    root = _immersive(tmp_path / "s")
+    mutate(root)
+    with pytest.raises(InputError, match=pattern) as err:
+        load_scene(DataConfig(path=str(root), format="immersive"))
+    assert "\n" not in str(err.value)
+
+
+def test_malformed_models_json_exits_2_with_one_line_from_the_cli(tmp_path):
+    root = _immersive(tmp_path / "s")
+    _edit_models(root, lambda m: m[1].update(orientation=[0.1, 0.2]))
+    repo = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": str(repo)}
+    run = subprocess.run([sys.executable, "-m", "harness.cli.ftgspp_cmd", "train", "data=immersive",
+                          f"data.path={root}", "profile=smoke"],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    lines = [ln for ln in run.stderr.splitlines() if ln.strip()]
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "models.json: camera camera_0002: 'orientation' must be a list of 3 numbers" in lines[0]

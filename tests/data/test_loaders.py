@@ -1,5 +1,5 @@
-"""Scene loaders (DyNeRF, EasyVolcap): conventions, frame ranges, caching (bad input:
-``test_loader_errors.py``).
+"""Scene loaders (DyNeRF; EasyVolcap, with ENeRF-Outdoor's conventions): conventions, frame
+ranges, caching (bad input: ``test_loader_errors.py``; Immersive: ``test_immersive.py``).
 
 Scenes are tiny (32x24, 4 cameras, 6 frames) and written by ``fixtures.py``; each frame
 shows a blob where the fixture's own camera model projects a moving 3D point, so marker
@@ -9,6 +9,7 @@ checks test the loaders' conventions independently of their code.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -270,3 +271,38 @@ def test_cache_dir_option_and_stale_cache(tmp_path):
     sa.frames(0)
     os.utime(a / "cam00.mp4", ns=(1, 1))  # the video changed: its cache must not be reused
     assert _load(a, cache_dir=str(tmp_path / "cache")).cache_dir != sa.cache_dir
+
+
+# --- ENeRF-Outdoor, and the dataset configs --------------------------------------------------------
+
+
+def test_enerf_outdoor_layout_with_distortion_loads(tmp_path):
+    """EasyMocap-style yml (``dist_NN``, no image size), cameras 00..04, JPEGs, extra folders."""
+    dists = [[-0.25, 0.07, 8e-4, -6e-4, 0.0], [-0.2, 0.05, 0.0, 0.0, 0.01], [-0.2, 0.05, 0.0, 0.0, 0.01],
+             [-0.25, 0.07, 8e-4, -6e-4, 0.0], [-0.5, 0.2, 0.0, 0.0]]  # 04: strong, and 4 coefficients
+    cams = fx.ring_cameras([f"{i:02d}" for i in range(4)]) + [fx.look_at_camera("04", (0.3, 0.2, -4.0), (1, -0.7, 0.1))]
+    cams = [replace(c, dist=np.array(d)) for c, d in zip(cams, dists)]
+    root = fx.write_easyvolcap(tmp_path / "actor1_4", cams, n_frames=4, ext=".jpg", dist_key="dist", write_size=False)
+    for extra in ("bkgd", "bgmtv2/00", "vhull"):
+        (root / extra).mkdir(parents=True)
+    scene = _load(root, frame_end=3)
+    assert [c.name for c in scene.cameras] == ["00", "01", "02", "03", "04"] and scene.test_ids == [0]
+    assert all(c.dist is None for c in scene.cameras)
+    for got, want in zip(scene.cameras, cams):
+        np.testing.assert_allclose(got.K, want.K)  # undistorted keeping K (ENeRF's cv2.undistort)
+    raw = cv2.cvtColor(cv2.imread(str(root / "images" / "04" / "000000.jpg")), cv2.COLOR_BGR2RGB)
+    assert np.abs(fx.marker_centroid(raw) - _projection(scene.cameras[4], fx.marker_position(0.0))).max() > 0.5
+    _assert_markers(scene)
+    assert _load(root, test_cameras=["03"]).test_ids == [3]
+
+
+@pytest.mark.parametrize(
+    "group, want",
+    [("immersive", dict(format="immersive", test_cameras=["camera_0001"], frame_end=50, downsample=2)),
+     ("enerf_outdoor", dict(format="easyvolcap", test_cameras=["17"], frame_end=150))],
+)
+def test_dataset_configs_compose(group, want):
+    from harness.spec.schema import compose, to_train_config
+
+    cfg = to_train_config(compose([f"data={group}", "data.path=/data/x"])).data
+    assert {k: getattr(cfg, k) for k in want} == want
