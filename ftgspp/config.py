@@ -15,14 +15,14 @@ class DataConfig:
     """Which scene to load and how."""
 
     path: str = ""  # scene folder; format detected from its contents
-    format: str = "auto"  # auto | dynerf | easyvolcap
+    format: str = "auto"  # auto | dynerf | easyvolcap | immersive
     downsample: float = 1.0  # 2 = half resolution
     frame_start: int = 0
     frame_end: int | None = None  # exclusive; None = all frames
     test_cameras: list[str] = field(default_factory=lambda: ["cam00"])
     drop_cameras: list[str] = field(default_factory=list)  # e.g. ["cam13"] for coffee_martini
     cache_dir: str | None = None  # decoded-frame cache; default <scene>/.ftgspp_cache
-    fps: float | None = None  # EasyVolcap scenes: frames per second (default: scene.json or 30)
+    fps: float | None = None  # EasyVolcap/Immersive frames: frames per second (default: scene.json or 30)
 
 
 @dataclass

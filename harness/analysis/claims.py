@@ -142,7 +142,7 @@ def missing(df: pd.DataFrame, claim: ClaimSpec) -> str:
             return f"variant `{v}` not in these runs"
     for s in claim.scenes:
         if s not in set(df.scene):
-            return f"scene `{s}` not in these runs"
+            return f"needs real data: {claim.needs}" if claim.needs else f"scene `{s}` not in these runs"
     return ""
 
 

@@ -288,5 +288,6 @@ def _claims(raw: list[ClaimFile], where: str, variants: set[str]) -> tuple[Claim
             b=c.b, scenes=tuple(c.scenes), pair=c.pair, versus=c.versus, sesoi=float(c.sesoi),
             sesoi_source=" ".join(c.sesoi_source.split()), group=c.group, paper=_paper(c.paper, f"{at}.paper"),
             contrasts=tuple(tuple((v, float(k)) for v, k in w.items()) for w in c.contrasts), requires=requires,
+            needs=c.needs,
         ))
     return tuple(out)

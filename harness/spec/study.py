@@ -191,6 +191,7 @@ class ClaimSpec:
     paper: PaperClaim | None = None
     contrasts: tuple[tuple[tuple[str, float], ...], ...] = ()
     requires: tuple[str, float] | None = None
+    needs: str = ""  # real data the claim needs; "not tested" rows say so
 
 
 @dataclass(frozen=True)

@@ -120,6 +120,7 @@ class ClaimFile:
     paper: Optional[PaperFile] = None
     contrasts: List[Dict[str, Any]] = field(default_factory=list)  # variant -> weight (numbers: spec.files)
     requires: Optional[RequiresFile] = None
+    needs: str = ""  # real data the claim needs (its scenes are in the paper profile only)
 
 
 @dataclass

@@ -258,9 +258,12 @@ def test_missing_runs_are_not_tested_and_an_absent_mechanism_not_exercised():
     df["relocated_total"] = 60.0
     out = verdicts(df, [claim(id="ok"), claim(id="gone", a="free_init"), claim(id="nowhere", scenes=("fast",)),
                         claim(id="nometric", metric="flicker_static"),
-                        claim(id="idle", requires=("relocated_total", 1000.0))])
+                        claim(id="idle", requires=("relocated_total", 1000.0)),
+                        claim(id="outdoor", scenes=("actor1_4",), needs="ENeRF-Outdoor (ENERF_OUTDOOR_ROOT)")])
     assert out.n[0] == "5 pairs"  # the failed run's pair is dropped, not imputed
-    assert list(out.verdict) == [V.REPRODUCED, V.NOT_TESTED, V.NOT_TESTED, V.NOT_TESTED, V.NOT_EXERCISED]
+    assert list(out.verdict) == [V.REPRODUCED, V.NOT_TESTED, V.NOT_TESTED, V.NOT_TESTED, V.NOT_EXERCISED,
+                                 V.NOT_TESTED]
+    assert out.note[5] == "needs real data: ENeRF-Outdoor (ENERF_OUTDOOR_ROOT)"
     assert "free_init" in out.note[1] and "fast" in out.note[2] and "flicker_static" in out.note[3]
     assert "median `relocated_total` 60 < 1000" in out.note[4]
     assert out.p_adj[0] == pytest.approx(out.p[0])  # one tested claim: no correction

@@ -26,7 +26,8 @@ def composed(name: str, profile: str) -> dict[str, dict[str, str]]:
 
 @pytest.mark.parametrize("profile", ["quick", "paper"])
 def test_ablation_rows_are_the_official_configurations(profile: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("DYNERF_ROOT", "/data/n3v")
+    for root in ("DYNERF_ROOT", "ENERF_OUTDOOR_ROOT", "IMMERSIVE_ROOT"):
+        monkeypatch.setenv(root, "/data/n3v")
     rows = composed("ablation", profile)
     expect = {  # variant: (velocity init, gate, max_duration, colour correction)
         "base": ("knn", "false", "null", "false"),
@@ -41,7 +42,8 @@ def test_ablation_rows_are_the_official_configurations(profile: str, monkeypatch
 
 @pytest.mark.parametrize("name", sorted(list_studies()))
 def test_the_gate_always_comes_with_the_one_second_bound(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("DYNERF_ROOT", "/data/n3v")
+    for root in ("DYNERF_ROOT", "ENERF_OUTDOOR_ROOT", "IMMERSIVE_ROOT"):
+        monkeypatch.setenv(root, "/data/n3v")
     for profile in ("quick", "paper"):
         for variant, p in composed(name, profile).items():
             if p["model.gate"] == "true":

@@ -22,14 +22,15 @@ def test_all_paper_studies_exist() -> None:
 
 @pytest.mark.parametrize("name", sorted(REQUIRED))
 def test_study_composes_in_every_profile(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("DYNERF_ROOT", "/data/n3v")
+    for root in ("DYNERF_ROOT", "ENERF_OUTDOOR_ROOT", "IMMERSIVE_ROOT"):
+        monkeypatch.setenv(root, "/data/n3v")
     study = load_study(name)
     assert study.question and study.baseline
     assert {"quick", "paper", "smoke"} <= set(study.profiles)
     for prof in study.profiles.values():
         assert prof.baseline in prof.variants
         if prof.name != "smoke":
-            assert prof.command.startswith(("study run", "DYNERF_ROOT")) and prof.run_seconds > 0  # an estimate
+            assert prof.command.startswith(("study run", "DYNERF_ROOT", "IMMERSIVE_ROOT")) and prof.run_seconds > 0  # an estimate
         # one seed is enough: seeds only change the trailing seed= override
         planned = plan_runs(expand(study, Selection(profile=prof.name, seeds=1)))
         assert len(planned) == sum(len(s.variants or prof.variants) for s in prof.scenes)
