@@ -52,7 +52,7 @@ SECONDS_PER_RUN ?= 40
 reports: install weights
 	$(PY) -m harness.cli.reports_plan --seconds-per-run $(SECONDS_PER_RUN) --jobs $(or $(JOBS),2) --todo .reports-todo
 	@set -e; for s in $$(cat .reports-todo); do case " $(STUDIES) " in *" $$s "*) \
-	  $(VENV)/bin/study run $$s --profile quick $(if $(JOBS),--jobs $(JOBS));; esac; done
+	  $(VENV)/bin/study run $$s --profile quick --rerun-stale $(if $(JOBS),--jobs $(JOBS));; esac; done
 	$(VENV)/bin/study report --all --profile quick --if-changed --out reports
 	$(VENV)/bin/study index --out reports
 	@echo "open reports/index.md"

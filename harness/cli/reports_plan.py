@@ -1,5 +1,6 @@
 """What ``make reports`` will run: per study, the quick profile's runs, those already
-finished in the store, and the expected time of the rest.
+finished in the store by this trainer (its fingerprint: runs of older code are run again,
+``study run --rerun-stale``), and the expected time of the rest.
 
     python -m harness.cli.reports_plan [--profile quick] [--seconds-per-run S] [--jobs N] [--todo FILE]
 
@@ -29,10 +30,13 @@ def plan_frame(profile: str = "quick") -> pd.DataFrame:
     from harness.spec.files import list_studies
     from harness.spec.runs import Selection
 
+    from harness.tracking.provenance import trainer_fingerprint
+
+    current = trainer_fingerprint()
     rows = []
     for name in list_studies():
         df = collect(name, Selection(profile=profile)).df
-        done = df[df.status == "FINISHED"]
+        done = df[(df.status == "FINISHED") & (df.get("trainer_fingerprint", pd.Series(dtype=str)) == current)]
         secs = float(done["train_seconds"].median()) if "train_seconds" in done and len(done) else math.nan
         rows.append({"study": name, "planned": len(df), "finished": len(done), "to_run": len(df) - len(done),
                      "median_train_seconds": secs})

@@ -68,6 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
                           " profiles: 1.36x the throughput of 1 job on 2 cores, BENCHMARKS.md), at most one per core")
     run.add_argument("--launcher", choices=LAUNCHERS, default="basic",
                      help="basic (default), joblib, local (submitit) or slurm (submitit; conf/hydra/launcher/slurm.yaml)")
+    run.add_argument("--rerun-stale", action="store_true",
+                     help="run again every finished run that another trainer version made (trainer fingerprint,"
+                          " harness/tracking/provenance.py); make reports uses it")
     run.add_argument("--lease", type=float, default=None, metavar="SECONDS",
                      help="a claimed run is taken over after this long without a heartbeat"
                           " (default $FTGSPP_LEASE_S or 300)")
@@ -216,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
             sel = _selection(args, required=True)
             run_study(args.name, sel, jobs=default_jobs(args.name, sel.profile) if args.jobs is None else args.jobs,
                       launcher=args.launcher,
-                      lease_s=args.lease)
+                      lease_s=args.lease, rerun_stale=args.rerun_stale)
             return 0
         if args.command == "status":
             return cmd_status(args)

@@ -102,10 +102,13 @@ def _take_over(store: Store, stale: list[RunRecord], me: str, lease_s: float) ->
     return taken
 
 
-def counts_as_done(rec: RunRecord) -> bool:
+def counts_as_done(rec: RunRecord, trainer: str = "") -> bool:
     """A FINISHED run, unless it was scored without LPIPS (weights missing then) and the weights
-    exist now: then a new run fills the LPIPS columns in."""
+    exist now (a new run fills the LPIPS columns in), or ``trainer`` is given and the run was
+    made by another trainer fingerprint (``study run --rerun-stale``: the code changed)."""
     if rec.status != "FINISHED":
+        return False
+    if trainer and rec.tags.get("trainer_fingerprint") != trainer:
         return False
     if rec.metrics.get("lpips_missing") != 1.0:
         return True
@@ -115,7 +118,7 @@ def counts_as_done(rec: RunRecord) -> bool:
 
 
 def acquire(store: Store, experiment_id: str, run_name: str, tags: dict[str, str], lease_s: float,
-            owner: str | None = None, rng: random.Random | None = None) -> Claim:
+            owner: str | None = None, rng: random.Random | None = None, trainer: str = "") -> Claim:
     """Claim the run whose key is in ``tags`` (study, variant, scene, seed, config_hash).
 
     Returns a ``Claim`` with the new RUNNING run's id, or with ``run_id=None`` and the reason
@@ -126,7 +129,7 @@ def acquire(store: Store, experiment_id: str, run_name: str, tags: dict[str, str
     took_over: list[str] = []
     for attempt in range(MAX_ATTEMPTS):
         runs = find_key_runs(store, experiment_id, tags)
-        if any(counts_as_done(r) for r in runs):
+        if any(counts_as_done(r, trainer) for r in runs):
             return Claim(None, "finished")
         live = [r for r in runs if is_live(r, lease_s)]
         if live:
@@ -138,7 +141,7 @@ def acquire(store: Store, experiment_id: str, run_name: str, tags: dict[str, str
             claim_tags[TOOK_OVER] = ",".join(took_over)
         run_id = store.create_run(experiment_id, run_name, claim_tags)
         others = [r for r in find_key_runs(store, experiment_id, tags)
-                  if r.run_id != run_id and (counts_as_done(r) or is_live(r, lease_s))]
+                  if r.run_id != run_id and (counts_as_done(r, trainer) or is_live(r, lease_s))]
         if not others:
             return Claim(run_id, took_over=tuple(took_over))
         store.delete_run(run_id)  # someone claimed at the same moment: withdraw, look again

@@ -76,8 +76,8 @@ def warm_kernels(echo: Callable[[str], None]) -> None:
     echo(f"  kernels compiled in {time.time() - t0:.0f} s")
 
 
-def pending(existing: list[RunRecord], planned: list[PlannedRun],
-            lease_s: float = lease.DEFAULT_LEASE_S) -> tuple[list[PlannedRun], list[RunRecord]]:
+def pending(existing: list[RunRecord], planned: list[PlannedRun], lease_s: float = lease.DEFAULT_LEASE_S,
+            trainer: str = "") -> tuple[list[PlannedRun], list[RunRecord]]:
     """(planned runs to launch, live claims of other invocations that are left to them),
     given the study's ``existing`` child runs.
 
@@ -85,7 +85,7 @@ def pending(existing: list[RunRecord], planned: list[PlannedRun],
     taken over by the job that claims the run (``run.lease.acquire``), not here. A finished run
     scored without LPIPS is run again once the weights are there.
     """
-    done = {r.key for r in existing if lease.counts_as_done(r)}
+    done = {r.key for r in existing if lease.counts_as_done(r, trainer)}
     live = {r.key: r for r in existing if lease.is_live(r, lease_s) and r.key not in done}
     todo = [p for p in planned if p.key not in done and p.key not in live]
     keys = {p.key for p in planned}
@@ -196,6 +196,7 @@ def run_study(
     train_fn: TrainFn | None = None,
     generate: Generator | None = None,
     echo: Callable[[str], None] = print,
+    rerun_stale: bool = False,
 ) -> StudyOutcome:
     """Run the missing or failed runs of study ``name``; see the module docstring."""
     if jobs < 1:
@@ -218,7 +219,8 @@ def run_study(
     exp_id = store.experiment_id(exp_name)  # created once, before any worker starts
     assert exp_id is not None
     existing = load_runs(store, exp_name, name)
-    todo, elsewhere = pending(existing, planned, lease_s)
+    trainer = trainer_fingerprint() if rerun_stale else ""  # --rerun-stale: runs of older code are not done
+    todo, elsewhere = pending(existing, planned, lease_s, trainer)
     for line in foreign_domain_notes(existing, planned):
         echo(line)
     outcome = StudyOutcome(total=len(planned), skipped=len(planned) - len(todo), launched=len(todo))
@@ -256,6 +258,7 @@ def run_study(
         train_fn=train_fn,
         lease_s=lease_s,
         command=command,
+        trainer=trainer,
     )
     # progress bars of parallel workers would interleave (progress is not part of the hash)
     quiet = ["progress=false"] if jobs > 1 or launcher in ("local", "slurm") else []

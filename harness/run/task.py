@@ -94,6 +94,7 @@ class RunTask:
     train_fn: TrainFn | None = None
     lease_s: float = lease.DEFAULT_LEASE_S
     command: str = ""
+    trainer: str = ""  # the trainer fingerprint a finished run must have to count as done ("": any)
 
     def __call__(self, dcfg: DictConfig) -> dict[str, Any]:
         from hydra.core.hydra_config import HydraConfig
@@ -104,7 +105,8 @@ class RunTask:
         cfg = resolve(dcfg, job.label)
         store = _store(self.uri)
         claim = lease.acquire(store, self.experiment_id, job.label,
-                              {**job.tags, "kind": "run", "mlflow.parentRunId": self.parent_run_id}, self.lease_s)
+                              {**job.tags, "kind": "run", "mlflow.parentRunId": self.parent_run_id}, self.lease_s,
+                              trainer=self.trainer)
         if claim.run_id is None:
             print(f"[run] {job.label}: skipped ({claim.reason})", flush=True)
             return {"label": job.label, "run_id": "", "status": "SKIPPED", "reason": claim.reason, "seconds": 0.0}

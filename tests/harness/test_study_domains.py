@@ -59,3 +59,21 @@ def test_a_run_of_a_worker_with_fewer_threads_is_compared_like_with_like(
     lines: list[str] = []
     run_study("toy", sel, echo=lines.append, **kw)
     assert not [ln for ln in lines if ln.startswith("[resume]")]
+
+
+def test_rerun_stale_runs_again_what_another_trainer_made(tmp_path: Path, mlflow_template: Path, monkeypatch) -> None:
+    from harness.tracking import provenance
+
+    prepare_workdir(tmp_path, mlflow_template, monkeypatch)
+    use_fakes(monkeypatch)
+    sel = Selection(variants=["baseline"], seeds=1)
+    kw = dict(studies_dir=TOY_STUDIES, train_fn=fake_train, generate=fake_generate, echo=lambda s: None)
+    assert run_study("toy", sel, **kw).launched == 1
+    assert run_study("toy", sel, rerun_stale=True, **kw).launched == 0  # same trainer: current
+    monkeypatch.setattr(provenance, "trainer_fingerprint", lambda root=None: "0ther0ther00")
+    import harness.run.runner as runner
+
+    monkeypatch.setattr(runner, "trainer_fingerprint", lambda: "0ther0ther00")
+    assert run_study("toy", sel, **kw).launched == 0  # a plain resume keeps what it has
+    out = run_study("toy", sel, rerun_stale=True, **kw)
+    assert out.launched == 1 and out.finished == 1  # the code changed: run it again
