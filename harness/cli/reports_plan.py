@@ -29,7 +29,6 @@ def plan_frame(profile: str = "quick") -> pd.DataFrame:
     from harness.report.results import collect
     from harness.spec.files import list_studies
     from harness.spec.runs import Selection
-
     from harness.tracking.provenance import trainer_fingerprint
 
     current = trainer_fingerprint()

@@ -6,6 +6,7 @@
                    [key=value overrides ...]
     study status NAME [same selection options]
     study report NAME [same selection options] [--out DIR]   (default outputs/reports/NAME)
+    study budget --preset P | --data DIR [--start N --max N --threshold DB --seeds N] [overrides]
     study check NAME [--reference runs.csv] [--strict]   the runs against a committed report, bit for bit
     study index [--out DIR]          OUT/index.md: every study's claims with verdicts
 
@@ -89,6 +90,17 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--reference", type=Path, default=None,
                        help=f"the runs.csv to compare with (default: {COMMITTED_REPORTS}/NAME/runs.csv)")
     check.add_argument("--strict", action="store_true", help="exit 1 unless every compared run is bit-identical")
+    budget = sub.add_parser("budget", help="the smallest Gaussian budget a scene needs (doubling, then bisection)")
+    where = budget.add_mutually_exclusive_group(required=True)
+    where.add_argument("--preset", help="a built-in synthetic scene (ftgspp synth presets)")
+    where.add_argument("--data", help="a scene folder of yours")
+    budget.add_argument("--start", type=int, default=500, help="first budget (default 500)")
+    budget.add_argument("--max", type=int, default=64_000, help="largest budget to try (default 64000)")
+    budget.add_argument("--threshold", type=float, default=0.1, help="dB a doubling must gain (default 0.1)")
+    budget.add_argument("--seeds", type=int, default=3, help="runs per budget (default 3)")
+    budget.add_argument("--jobs", type=int, default=None, help="parallel runs (default: one per core, at most 2)")
+    budget.add_argument("--out", type=Path, default=USER_REPORTS / "budget", help="where the result goes")
+    budget.add_argument("overrides", nargs="*", help="Hydra overrides for every run, e.g. model=ftgspp")
     index = sub.add_parser("index", help="index.md: one row per claim of every study with runs")
     index.add_argument("--out", type=Path, default=USER_REPORTS, help=f"reports root (default: {USER_REPORTS})")
     return parser
@@ -164,6 +176,23 @@ def cmd_status(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_budget(args: argparse.Namespace) -> int:
+    """``study budget``: search, then write and print the answer."""
+    from harness.cli.budget import data_scene, search, synthetic_scene
+    from harness.report.budget import write
+
+    if args.start < 1 or args.max < args.start or args.seeds < 2 or args.threshold <= 0:
+        raise InputError("study budget", "needs 1 <= --start <= --max, --seeds >= 2 and --threshold > 0")
+    scene = synthetic_scene(args.preset) if args.preset else data_scene(args.data)
+    jobs = args.jobs or max(1, min(2, os.cpu_count() or 1))
+    found = search(scene, start=args.start, max_budget=args.max, threshold=args.threshold, seeds=args.seeds,
+                   overrides=list(args.overrides), jobs=jobs)
+    path = write(found, args.out / found.scene)
+    print(path.read_text().split("\n**")[-1].strip() if found.saturated else "no saturation: see " + str(path))
+    print(f"report: {path}")
+    return 0
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     """``study check NAME``: the latest invocation's runs against a committed report, bit for bit."""
     from harness.analysis import reproduction
@@ -233,6 +262,8 @@ def main(argv: list[str] | None = None) -> int:
                 write_report(name, _selection(args, required=False), reports_root=args.out, if_changed=args.if_changed,
                              skip_empty=args.all)
             return 0
+        if args.command == "budget":
+            return cmd_budget(args)
         if args.command == "check":
             return cmd_check(args)
         if args.command == "index":

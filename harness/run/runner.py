@@ -197,15 +197,17 @@ def run_study(
     generate: Generator | None = None,
     echo: Callable[[str], None] = print,
     rerun_stale: bool = False,
+    study: StudySpec | None = None,
 ) -> StudyOutcome:
-    """Run the missing or failed runs of study ``name``; see the module docstring."""
+    """Run the missing or failed runs of study ``name``; see the module docstring. ``study``:
+    a spec built in code (``run.budget``) instead of ``studies/<name>.yaml``."""
     if jobs < 1:
         raise InputError("--jobs", "must be at least 1")
     try:
         lease_s = lease.lease_seconds(lease_s)
     except ValueError as exc:
         raise InputError("--lease", str(exc)) from None
-    study = load_study(name, studies_dir)
+    study = study or load_study(name, studies_dir)
     command = command_line(name, sel, jobs, launcher)
     run_overrides, launcher_args = split_launcher_args(sel.overrides)
     sel = dataclasses.replace(sel, overrides=run_overrides)

@@ -1,0 +1,65 @@
+"""The budget search in a report: ``outputs/reports/budget/<scene>/`` (budget.md, budget.csv,
+budget.png) — PSNR and training time per budget tried, the decisions, the answer."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from harness.analysis.budget import BudgetSearch
+from harness.report.plots import save_figure
+
+
+def frame(found: BudgetSearch) -> pd.DataFrame:
+    """One row per budget tried: runs, mean ± std PSNR, mean train seconds."""
+    rows = [{"budget": b, "n": len(p), "psnr_mean": float(np.mean(p)), "psnr_std": float(np.std(p, ddof=1))
+             if len(p) > 1 else np.nan, "train_seconds": float(np.nanmean(found.seconds[b]))}
+            for b, p in sorted(found.psnr.items())]
+    return pd.DataFrame(rows)
+
+
+def markdown(found: BudgetSearch) -> str:
+    table = frame(found)
+    lines = [f"# The smallest budget scene `{found.scene}` needs", "",
+             f"Doubling from {table.budget.min()} Gaussians while doubling gains at least {found.threshold:g} dB of"
+             " held-out PSNR, then bisecting; each budget judged against the largest tried.", "",
+             "| Gaussians | runs | PSNR (dB) | train time (s) |", "|---:|---:|---:|---:|"]
+    for r in table.itertuples():
+        mark = " **(chosen)**" if r.budget == found.chosen else ""
+        lines.append(f"| {r.budget}{mark} | {r.n} | {r.psnr_mean:.2f} ± {r.psnr_std:.2f} | {r.train_seconds:.1f} |")
+    lines += ["", "Decisions:", "", *[f"- {s}" for s in found.steps], ""]
+    if not found.saturated:
+        lines.append(f"**No saturation:** doubling still gained {found.threshold:g} dB or more at the largest budget"
+                     f" allowed; {found.chosen} is the largest tried, not a sufficient one (raise --max).")
+    else:
+        g = found.gap()
+        settled = "settled" if g.settled_below(found.threshold) else "not settled: the interval reaches it"
+        lines.append(f"**Smallest sufficient budget: {found.chosen} Gaussians**, {g.mean:.2f} dB"
+                     f" [{g.low:.2f}, {g.high:.2f}] below {found.best} ({settled}); it saves"
+                     f" {found.seconds_saved():.1f} s of training per run.")
+    return "\n".join(lines) + "\n"
+
+
+def write(found: BudgetSearch, out: Path) -> Path:
+    """``budget.md``, ``budget.csv`` and ``budget.png`` under ``out``; returns the Markdown's path."""
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    table = frame(found)
+    table.to_csv(out / "budget.csv", index=False)
+    fig, ax = plt.subplots(figsize=(6.0, 4.0))
+    ax.errorbar(table.budget, table.psnr_mean, yerr=table.psnr_std.fillna(0), marker="o", capsize=3)
+    if found.chosen is not None:
+        ax.plot([found.chosen], [table.set_index("budget").psnr_mean[found.chosen]], "*", ms=16, color="C3",
+                label="smallest sufficient" if found.saturated else "largest tried (no saturation)")
+        ax.legend(fontsize=8)
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("Gaussians")
+    ax.set_ylabel("held-out PSNR (dB)")
+    ax.set_title(f"{found.scene}: PSNR per budget (mean ± std over seeds)", fontsize=10)
+    ax.grid(alpha=0.3)
+    save_figure(fig, out / "budget.png")
+    (out / "budget.md").write_text(markdown(found))
+    return out / "budget.md"

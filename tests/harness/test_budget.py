@@ -1,0 +1,52 @@
+"""``study budget``: doubling then bisection finds the smallest sufficient budget of a scene."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from fakes import fake_generate, fake_train
+
+from harness.analysis.budget import gain, midpoint, sufficient
+from harness.cli.budget import search, synthetic_scene
+from harness.report.budget import write
+
+
+def saturating(cfg, out_dir, tracker):
+    """PSNR rises with the budget and saturates: 30 - 3 exp(-budget / 1500), plus seed noise."""
+    result = fake_train(cfg, out_dir, tracker)
+    result.metrics["psnr"] = 30.0 - 3.0 * math.exp(-cfg.budget / 1500) + 0.01 * (cfg.seed - 1)
+    result.metrics["train_seconds"] = 1.0 + cfg.budget / 1000
+    return result
+
+
+def test_gain_and_decisions() -> None:
+    g = gain([30.0, 30.1, 29.9], [30.5, 30.6, 30.4])
+    assert g.mean == 0.5 and g.low < 0.5 < g.high and not g.settled_below(0.1)
+    assert sufficient([30.45], [30.5], 0.1) and not sufficient([30.3], [30.5], 0.1)
+    assert midpoint(1000, 2000) == 1500 and midpoint(1000, 1300) == 1200
+
+
+def test_the_search_doubles_then_bisects_and_reports_the_time_saved(workdir: Path) -> None:
+    found = search(synthetic_scene("static"), start=500, max_budget=64_000, threshold=0.1, seeds=3,
+                   train_fn=saturating, generate=fake_generate, echo=lambda s: None)
+    # 30 - 3 exp(-b/1500): the gain of doubling falls under 0.1 dB between 4000 and 8000
+    doubled = [step.split(":")[0] for step in found.steps if "->" in step.split(":")[0]]
+    assert found.saturated and doubled == ["500 -> 1000", "1000 -> 2000", "2000 -> 4000", "4000 -> 8000",
+                                           "8000 -> 16000"]
+    assert 4000 < found.chosen <= 8000 and found.chosen < found.best
+    assert 3.0 * math.exp(-found.chosen / 1500) - 3.0 * math.exp(-found.best / 1500) < 0.1  # truly sufficient
+    assert found.seconds_saved() > 0 and found.gap().mean < 0.1
+    md = write(found, Path("outputs/reports/budget") / found.scene).read_text()
+    assert f"**Smallest sufficient budget: {found.chosen} Gaussians**" in md and "saves" in md
+    again = search(synthetic_scene("static"), start=500, max_budget=64_000, threshold=0.1, seeds=3,
+                   train_fn=saturating, generate=fake_generate, echo=lambda s: None)
+    assert again.chosen == found.chosen  # resumed from the store: the same answer
+
+
+def test_no_saturation_is_said_plainly(workdir: Path) -> None:
+    found = search(synthetic_scene("studio"), start=500, max_budget=2000, threshold=0.001, seeds=2,
+                   train_fn=saturating, generate=fake_generate, echo=lambda s: None)
+    assert not found.saturated and found.chosen == 2000
+    md = write(found, Path("outputs/reports/budget") / found.scene).read_text()
+    assert "No saturation" in md
