@@ -19,6 +19,7 @@ import pandas as pd
 
 from harness.analysis.aggregate import AVERAGE, DOMAIN_COLUMNS, EXTRA_PARAMS, KEY_COLUMNS
 from harness.spec.files import load_study
+from harness.spec.metrics import add_differences
 from harness.spec.plan import PlannedRun, RunKey, plan_runs
 from harness.spec.runs import Selection, expand, standalone_command
 from harness.spec.study import StudySpec
@@ -117,4 +118,5 @@ def collect(name: str, sel: Selection | None = None, studies_dir: Path | None = 
         parents = load_runs(store, target[1], name, kind="study")
     uri, exp = target
     chosen = select(load_runs(store, exp, name), [p.key for p in planned])
-    return ReportData(study, base, planned, runs_frame(chosen, planned), uri, exp, parents, store, chosen)
+    df = add_differences(runs_frame(chosen, planned))  # derived per-run metrics (the registry's differences)
+    return ReportData(study, base, planned, df, uri, exp, parents, store, chosen)

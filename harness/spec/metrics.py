@@ -142,6 +142,7 @@ for _m in (
     Metric("gap_lpips_alex", "LPIPS-Alex: [0,1] − [-1,1] input", 4, NEITHER, DIFFERENCE, ("lpips_alex_01", "lpips_alex")),
     Metric("gap_lpips_vgg", "LPIPS-VGG: [0,1] − [-1,1] input", 4, NEITHER, DIFFERENCE, ("lpips_vgg_01", "lpips_vgg")),
     Metric("gap_ssim", "SSIM: data range 2 − 1", 4, NEITHER, DIFFERENCE, ("ssim2", "ssim1")),
+    Metric("psnr_cc_gap", "colour-aligned − raw PSNR (dB)", 2, NEITHER, DIFFERENCE, ("psnr_cc", "psnr")),
     Metric("gap_dssim", "DSSIM: data range 2 − 1", 4, NEITHER, DIFFERENCE, ("dssim2", "dssim1")),
     # families of metrics without an entry of their own
     Metric("ssim*", decimals=4, claimable=False),
