@@ -33,7 +33,7 @@ from ftgspp.metrics import (
 
 LPIPS_REF_DIR = Path(__file__).resolve().parent / "assets" / "lpips_ref"  # images, provenance, licence
 
-BASE_KEYS = ["psnr", "ssim1", "ssim2", "dssim1", "dssim2"]
+BASE_KEYS = ["psnr", "psnr_cc", "ssim1", "ssim2", "dssim1", "dssim2"]
 LPIPS_KEYS = ["lpips_alex", "lpips_vgg", "lpips_alex_01", "lpips_vgg_01"]
 
 
