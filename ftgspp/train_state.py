@@ -123,6 +123,7 @@ class TrainState:
     extent: float
     step: int = 0
     elapsed: float = 0.0
+    relocated: int = 0  # Gaussians relocated so far (summed over relocation steps)
 
     @classmethod
     def create(cls, cfg: TrainConfig, scene: Scene, device: torch.device) -> "TrainState":
@@ -148,6 +149,7 @@ class TrainState:
             "format": CHECKPOINT_FORMAT,
             "step": self.step,
             "elapsed": self.elapsed,
+            "relocated": self.relocated,
             "params": {k: v.detach().cpu() for k, v in self.model.params.items()},
             "cc": self.cc.state_dict() if self.cc is not None else None,
             "optimizer": self.optimizer.state_dict(),
@@ -171,6 +173,7 @@ class TrainState:
         self.reloc_gen.set_state(blob["reloc_gen"])
         torch.set_rng_state(blob["torch_rng"])
         self.step, self.elapsed = int(blob["step"]), float(blob["elapsed"])
+        self.relocated = int(blob.get("relocated", 0))
 
     def save(self, path: Path) -> None:
         """Write a checkpoint atomically (temporary file, then rename)."""

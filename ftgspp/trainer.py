@@ -160,6 +160,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
         "iters_per_second": cfg.iterations / elapsed if elapsed > 0 else float("nan"),
         "peak_rss_mb": _peak_rss_mb(),
         "n_gaussians": float(len(model)),
+        "relocated_total": float(state.relocated),
     })
     _write_metrics(out_dir, metrics)
     metrics.update(evaluate_lpips(model, scene, cfg))
@@ -227,6 +228,7 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
         st.optimizer.zero_grad(set_to_none=True)
         if st.relocator.due(step):
             moved = st.relocator.step(st.model.params, st.optimizer, st.reloc_stats, st.reloc_gen)
+            st.relocated += int(moved)
             tracker.log_metrics({"relocated": float(moved)}, step=step)
         st.step, st.elapsed = step, time.perf_counter() - t0
 

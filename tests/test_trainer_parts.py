@@ -227,10 +227,12 @@ def test_sh_degree_relocation_and_colour_correction_schedules_in_the_loop(tiny_s
     cfg = full_featured(small_cfg(tiny_scene_dir, tmp_path, iterations=40, diagnostics=False))
     cfg.sh_degree_interval, cfg.strategy.refine_stop_iter = 7, 31
     rec = Recorder()
-    train(cfg, tiny_scene, rec)
+    result = train(cfg, tiny_scene, rec)
     assert seen_degrees[:40] == [min(3, it // 7) for it in range(40)]
     assert [sh_degree_at(cfg, it) for it in (0, 6, 7, 20, 21, 39)] == [0, 0, 1, 2, 3, 3]
     assert [s for s, m in rec.metrics if "relocated" in m] == [5, 10, 15, 20, 25, 30]  # 2 < step < 31
+    per_step = sum(m["relocated"] for _, m in rec.metrics if "relocated" in m)
+    assert result.metrics["relocated_total"] == per_step  # the run's total is the sum of what each step moved
     assert cc_in_loss == [step > 8 for step in range(1, 41)]
 
 
