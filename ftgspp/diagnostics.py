@@ -64,13 +64,17 @@ def ground_truth_scores(model: FreeTimeGaussians, scene: Scene, cam: int, gt: Gr
     """Partition, role-switch and flicker scores of ``model`` in camera ``cam`` over every
     loaded frame; ``short [N]`` marks the short-lived Gaussians, ``frames [F, H, W, 3]`` the
     renders. Keys are the names the trainer logs them under."""
-    per_frame = [mask_weights(model, scene.cameras[cam], float(t), np.stack([gt.objects[f] > 0, gt.objects[f] == 0]),
-                              backend) for f, t in enumerate(scene.times)]  # fmt: skip
-    w = np.stack(per_frame)  # [F, N, 2]
+    def masks(f: int) -> np.ndarray:  # moving objects, static pixels (, transient objects)
+        m = [gt.objects[f] > 0, gt.objects[f] == 0]
+        return np.stack(m if gt.transient is None else [*m, gt.transient[f]])
+
+    per_frame = [mask_weights(model, scene.cameras[cam], float(t), masks(f), backend)
+                 for f, t in enumerate(scene.times)]
+    w = np.stack(per_frame)  # [F, N, 2 or 3]
     part = partition_scores(w[..., 0].sum(axis=0), w[..., 1].sum(axis=0), short)
     flicker = static_flicker(frames, gt.objects)
     gt_frames = scene.frames(cam).astype(np.float32) / 255.0
-    return {
+    scores = {
         "lifetime_partition_contrast": part["partition_contrast"],
         "lifetime_short_share_dynamic": part["short_share_dynamic"],
         "lifetime_short_share_static": part["short_share_static"],
@@ -78,6 +82,11 @@ def ground_truth_scores(model: FreeTimeGaussians, scene: Scene, cam: int, gt: Gr
         "flicker_static": flicker["flicker"],
         "flicker_static_gt": static_flicker(gt_frames, gt.objects)["flicker"],
     }
+    if gt.transient is not None and gt.transient.any():  # content that exists for part of the clip
+        split = partition_scores(w[..., 2].sum(axis=0), w[..., 1].sum(axis=0), short)
+        scores["lifetime_short_share_transient"] = split["short_share_dynamic"]
+        scores["lifetime_transient_contrast"] = split["partition_contrast"]
+    return scores
 
 
 @dataclass

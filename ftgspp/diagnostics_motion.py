@@ -101,6 +101,7 @@ class GroundTruth:
     depth: np.ndarray  # [F, H, W] float32 camera z-depth
     flow3d: np.ndarray  # [F, H, W, 3] float32 world velocity of the visible point, units/s
     objects: np.ndarray  # [F, H, W] uint8, 0 = static background
+    transient: np.ndarray | None = None  # [F, H, W] bool: an object that exists for part of the clip
 
 
 def load_ground_truth(scene: Scene, cam: int) -> GroundTruth | None:
@@ -113,6 +114,9 @@ def load_ground_truth(scene: Scene, cam: int) -> GroundTruth | None:
     if not all(p.is_file() for p in paths):
         return None
     ids = np.asarray(scene.frame_ids)
+    transient = Path(scene.ground_truth) / "transient" / f"{c.name}.npy"
+    if transient.is_file():
+        paths.append(transient)
     arrays = []
     for p in paths:
         a = np.load(p, mmap_mode="r")[ids]
@@ -120,7 +124,8 @@ def load_ground_truth(scene: Scene, cam: int) -> GroundTruth | None:
             a = np.stack([cv2.resize(np.asarray(x, dtype=np.float32), (c.width, c.height),
                                      interpolation=cv2.INTER_NEAREST) for x in a])  # fmt: skip
         arrays.append(np.asarray(a))
-    return GroundTruth(arrays[0].astype(np.float32), arrays[1].astype(np.float32), arrays[2].astype(np.uint8))
+    return GroundTruth(arrays[0].astype(np.float32), arrays[1].astype(np.float32), arrays[2].astype(np.uint8),
+                       arrays[3] > 0 if len(arrays) > 3 else None)
 
 
 def motion_error(velocity: np.ndarray, alpha: np.ndarray, gt_flow3d: np.ndarray, objects: np.ndarray,

@@ -300,3 +300,23 @@ def test_diagnose_cli_on_a_generated_scene(tmp_path, capsys):
     with pytest.raises(InputError, match="give the scene with --data DIR"):
         main([str(run)])
     assert main([str(run), "--data", str(root), "--theta", "0.1"]) == 0
+
+
+def test_transient_share_is_measured_where_the_scene_marks_transient_pixels(tmp_path):
+    """The object exists only at the start (short-lived Gaussians): on its pixels nearly all the
+    weight is short-lived, on static pixels none, so the transient contrast is close to 1; a
+    scene without ``gt/transient`` reports no transient numbers."""
+    model, is_obj = wall_and_object()
+    with torch.no_grad():
+        model.params["durations"][torch.from_numpy(is_obj)] = duration_to_param(0.04, None)
+    scene = tiny_scene(tmp_path, model, is_obj)
+    cfg = TrainConfig()
+    cfg.model.sh_degree = 0
+    plain = run_diagnostics(model, scene, cfg, tmp_path / "plain", frame=1).metrics()
+    assert "lifetime_transient_contrast" not in plain
+    (tmp_path / "gt" / "transient").mkdir()
+    np.save(tmp_path / "gt" / "transient" / "cam00.npy", np.load(tmp_path / "gt" / "objects" / "cam00.npy"))
+    m = run_diagnostics(model, scene, cfg, tmp_path / "diag", frame=1).metrics()
+    assert m["lifetime_short_share_transient"] > 0.9 and m["lifetime_short_share_static"] < 0.1
+    assert m["lifetime_transient_contrast"] == pytest.approx(
+        m["lifetime_short_share_transient"] - m["lifetime_short_share_static"])

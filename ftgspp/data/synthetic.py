@@ -70,6 +70,17 @@ class SynthConfig:
     orbit_radius: float = 0.5
     orbit_omega: float = 1.4  # rad/s
     spin: float = 2.0  # rad/s, spin of the curved ball about the vertical
+    # the events of real captures (docs/datasets.md "Synthetic presets"); off by default
+    transients: int = 0  # 0-2 still objects that appear and disappear mid-clip
+    occluder_pass: bool = False  # a ball that passes behind the crate
+    flame: float = 0.0  # flicker strength of a flame-like ball whose colours change every frame
+    exposure_drift: float = 0.0  # 1: auto-exposure log-gain drifts by up to ±0.15, white balance ±0.05
+    window: bool = True  # False: the back wall has no window onto the far backdrop
+
+
+# fields whose default leaves the scene as it was before they existed: left out of scene.json
+# at their default, so earlier scenes stay byte-identical
+EVENT_DEFAULTS = dict(transients=0, occluder_pass=False, flame=0.0, exposure_drift=0.0, window=True)
 
 
 PRESETS: dict[str, dict] = {
@@ -79,6 +90,20 @@ PRESETS: dict[str, dict] = {
     "fast_motion": dict(linear_velocity=(1.8, -0.15, 0.35), orbit_radius=0.75, orbit_omega=4.0, spin=5.0),
     # nothing moves
     "static": dict(linear_velocity=(0.0, 0.0, 0.0), orbit_omega=0.0, spin=0.0),
+    # secret 1: two still objects that each exist for ~40 % of a 2-s clip (transient content)
+    "transient": dict(transients=2, n_frames=60),
+    # a ball that passes behind the crate: objects.json has its visible pixels per frame
+    "occlusion": dict(occluder_pass=True),
+    # secret 5: DyNeRF-like per-camera exposure and white balance drifting over time
+    "exposure_drift": dict(exposure_drift=1.0),
+    # secret 3, the DyNeRF ladder: 4 s (120 frames) of slow motion
+    "long_slow": dict(n_frames=120, speed=0.4),
+    # secret 3, the SelfCap ladder: 1 s of fast motion (fast_motion, 1.25x faster)
+    "short_fast": dict(linear_velocity=(1.8, -0.15, 0.35), orbit_radius=0.75, orbit_omega=4.0, spin=5.0, speed=1.25),
+    # secret 3's depth prior control: the studio with its window closed (no far backdrop)
+    "closed_window": dict(window=False),
+    # a flame-like ball: geometry fixed, colours redrawn every frame (DyNeRF's flames and steam)
+    "flame": dict(flame=0.6),
 }
 
 _LINEAR_MID = np.array([-0.55, 0.45, 0.8])  # ball_linear position at mid-clip
@@ -107,6 +132,9 @@ def resolve_config(preset: str = "studio", seed: int = 0, **overrides) -> SynthC
         ("fps", cfg.fps > 0, "must be > 0"),
         ("supersample", cfg.supersample >= 1, "must be >= 1"),
         ("--codec", cfg.codec in CODECS, f"unknown codec '{cfg.codec}' (choose from {', '.join(CODECS)})"),
+        ("--transients", cfg.transients in (0, 1, 2), "must be 0, 1 or 2"),
+        ("--flame", cfg.flame >= 0, "must be >= 0"),
+        ("--exposure-drift", cfg.exposure_drift >= 0, "must be >= 0"),
     ]
     for where, ok, problem in checks:
         if not ok:
@@ -129,13 +157,16 @@ def build_scene(cfg: SynthConfig) -> tuple[SceneContent, list[Camera]]:
     static = [  # room planes end at the back wall (z = 5); the window looks onto the backdrop
         Quad("floor", np.array([0.0, 1.0, 0.0]), ex, ez, -ey, tex(30, 0.8, 1), (-inf, inf, -inf, 5.0)),
         Quad("ceiling", np.array([0.0, -2.4, 0.0]), ex, ez, ey, tex(60, 1.2, 2), (-inf, inf, -inf, 5.0)),
-        Quad("back_wall", np.array([0.0, 0.0, 5.0]), ex, ey, -ez, tex(200, 1.0, 3), holes=((-1.7, 0.9, -1.4, 0.3),)),
+        Quad("back_wall", np.array([0.0, 0.0, 5.0]), ex, ey, -ez, tex(200, 1.0, 3),
+             holes=((-1.7, 0.9, -1.4, 0.3),) if cfg.window else ()),
         Quad("left_wall", np.array([-3.0, 0.0, 0.0]), ez, ey, ex, tex(100, 1.0, 4), (-inf, 5.0, -inf, inf)),
         Quad("right_wall", np.array([3.0, 0.0, 0.0]), ez, ey, -ex, tex(330, 1.0, 5), (-inf, 5.0, -inf, inf)),
         Quad("backdrop", np.array([0.0, 0.0, 26.0]), ex, ey, -ez, tex(140, 3.5, 6)),
         Box("crate", np.array([1.1, 0.25, 2.6]), np.array([1.9, 1.0, 3.4]), tex(15, 0.5, 7)),
         Box("pillar", np.array([-2.0, -2.4, 3.0]), np.array([-1.6, 1.0, 3.4]), tex(270, 0.6, 8)),
     ]
+    if not cfg.window:  # closed: no backdrop (its texture is still drawn, so the rest stays the same)
+        static = [q for q in static if q.name != "backdrop"]
 
     t_mid = (cfg.n_frames - 1) / (2 * cfg.fps)
     v_lin = np.array(cfg.linear_velocity) * cfg.speed
@@ -148,9 +179,57 @@ def build_scene(cfg: SynthConfig) -> tuple[SceneContent, list[Camera]]:
                      ArcPath(_ORBIT_CENTRE, cfg.orbit_radius, omega, -np.pi / 2 - omega * t_mid, ex, _ORBIT_E2),
                      make_texture(rng, 50, 0.3, 10, 2 * np.pi * r_arc, vivid=True), spin=cfg.spin * cfg.speed),
     ]
+    objects += _event_objects(cfg, rng, t_mid)
     cams = make_rig(cfg.n_cameras, cfg.width, cfg.height, cfg.hfov_deg, cfg.arc_deg, cfg.rig_radius,
                     target=np.array([0.0, 0.2, 1.4]), eye_height=-0.3)
     return SceneContent(static, objects), cams
+
+
+def _event_objects(cfg: SynthConfig, rng: np.random.Generator, t_mid: float) -> list[MovingSphere]:
+    """The optional objects of ``cfg`` (transients, the occluded ball, the flame), drawn after the
+    default scene's so that its textures do not change."""
+    duration = cfg.n_frames / cfg.fps
+    still = np.zeros(3)
+    out = []
+    # (centre on the floor, radius, the fraction of the clip it exists in)
+    spots = [(np.array([-1.55, 0.62, 1.9]), 0.38, (0.2, 0.6)), (np.array([0.35, 0.7, 3.7]), 0.3, (0.45, 0.85))]
+    for k, (centre, r, (a, b)) in enumerate(spots[: cfg.transients]):
+        out.append(MovingSphere(f"transient_{k}", 3 + k, r, LinearPath(centre, still, t_mid),
+                                make_texture(rng, 200 + 80 * k, 0.3, 11 + k, 2 * np.pi * r, vivid=True),
+                                visible=(a * duration, b * duration), role="transient"))
+    if cfg.occluder_pass:  # crosses x = 0.2 .. 2.8 at z = 4.1, behind the crate (x 1.1 .. 1.9, z 2.6 .. 3.4)
+        r = 0.28
+        v = np.array([2.6 * cfg.speed / max((cfg.n_frames - 1) / cfg.fps, 1e-6), 0.0, 0.0])  # one crossing
+        out.append(MovingSphere("ball_occluded", 5, r, LinearPath(np.array([1.5, 0.62, 4.1]), v, t_mid, 1.3),
+                                make_texture(rng, 160, 0.3, 13, 2 * np.pi * r, vivid=True)))
+    if cfg.flame > 0:
+        r = 0.4
+        out.append(MovingSphere("flame", 6, r, LinearPath(np.array([-0.9, 0.55, 3.9]), still, t_mid),
+                                make_texture(rng, 20, 0.3, 14, 2 * np.pi * r, vivid=True), flicker=cfg.flame,
+                                role="flame"))
+    return out
+
+
+def exposure_gains(cfg: SynthConfig, n_cameras: int) -> np.ndarray | None:
+    """Per-camera, per-frame RGB gains ``[C, F, 3]`` of the auto-exposure drift, or None.
+
+    A DyNeRF-like model: each camera's exposure (a common log-gain) and white balance (a
+    log-gain per channel) wander smoothly over time, as sums of three slow sinusoids
+    (0.1–0.6 Hz, random phases) scaled to ±0.15 and ±0.05 × ``exposure_drift``.
+    """
+    if cfg.exposure_drift <= 0:
+        return None
+    rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 3]))
+    t = np.arange(cfg.n_frames) / cfg.fps
+
+    def wander(amplitude: float, shape: tuple[int, ...]) -> np.ndarray:  # [*shape, F]
+        freq = rng.uniform(0.1, 0.6, (*shape, 3, 1))
+        phase = rng.uniform(0, 2 * np.pi, (*shape, 3, 1))
+        return amplitude * np.sin(2 * np.pi * freq * t + phase).sum(axis=-2) / 3.0
+
+    exposure = wander(0.15 * cfg.exposure_drift, (n_cameras,))  # [C, F]
+    balance = wander(0.05 * cfg.exposure_drift, (n_cameras, 3))  # [C, 3, F]
+    return np.exp(exposure[:, :, None] + np.moveaxis(balance, 1, 2))
 
 
 def color_transforms(cfg: SynthConfig, n_cameras: int) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -176,8 +255,11 @@ class CameraRender:
 
 
 def render_camera(content: SceneContent, cam: Camera, cfg: SynthConfig, transform: tuple[np.ndarray, np.ndarray],
-                  cam_index: int, rays: Callable[[int], np.ndarray] | None = None) -> CameraRender:
+                  cam_index: int, rays: Callable[[int], np.ndarray] | None = None,
+                  gains: np.ndarray | None = None) -> CameraRender:
     """Ray-cast all frames of one camera, then apply its colour shift and noise.
+
+    ``gains [F, 3]``: the camera's exposure drift per frame (``exposure_gains``), applied first.
 
     ``rays(s)`` is the camera's world ray grid ``[H*s, W*s, 3]`` (unit camera-z) through a
     lens (``synthetic_layouts.Lens.rays``); default: the pinhole ``pixel_rays``.
@@ -197,6 +279,8 @@ def render_camera(content: SceneContent, cam: Camera, cfg: SynthConfig, transfor
         t = f / cfg.fps
         rgb = cast_objects(content, cam, sub_dirs, s, t, sub_bg, box_from_rays=lens).rgb
         img = cv2.resize(rgb.astype(np.float32), (W, H), interpolation=cv2.INTER_AREA)  # s x s box average
+        if gains is not None:
+            img = img * gains[f].astype(np.float32)
         img = img @ M + transform[1]
         if cfg.noise > 0:
             img = img + noise_rng.normal(0.0, cfg.noise, img.shape)
@@ -276,6 +360,21 @@ def _trajectories(content: SceneContent, cfg: SynthConfig) -> dict:
                 fps=cfg.fps, times=times.tolist(), objects=objs)
 
 
+def _objects(content: SceneContent, cfg: SynthConfig, pixels: dict[str, dict[int, list[int]]]) -> dict:
+    """``gt/objects.json``: every object's id, role and existence window, and its visible pixels
+    per camera and frame (0 while it is absent or hidden behind something)."""
+    times = np.arange(cfg.n_frames) / cfg.fps
+    objs = []
+    for o in content.objects:
+        a, b = o.visible
+        objs.append(dict(label=o.label, name=o.name, role=o.role,
+                         exists=[None if not np.isfinite(a) else a, None if not np.isfinite(b) else b],
+                         present=[o.present(t) for t in times],
+                         visible_pixels={cam: counts[o.label] for cam, counts in pixels.items()}))
+    return dict(note="exists: [appears, disappears) in seconds, null = the whole clip; visible_pixels per "
+                     "camera and frame from gt/objects", fps=cfg.fps, objects=objs)
+
+
 def _prepare_out(out: Path, overwrite: bool) -> None:
     if out.exists() and any(out.iterdir()):
         if overwrite and (out / "gt" / "scene.json").exists():
@@ -304,14 +403,17 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
     lenses = layouts.make_lenses(layout, cams) if layout in layouts.LENS_LAYOUTS else []
     cams = [lens.camera for lens in lenses] or cams
     transforms = color_transforms(cfg, len(cams))
+    gains = exposure_gains(cfg, len(cams))
+    transient_labels = [o.label for o in content.objects if o.transient()]
     gt = out / "gt"
-    for sub in ("depth", "flow3d", "objects"):
+    for sub in ("depth", "flow3d", "objects") + (("transient",) if transient_labels else ()):
         (gt / sub).mkdir(parents=True, exist_ok=True)
-    bounds = []
+    bounds, pixels = [], {}
     for ci, cam in enumerate(cams):
-        r = render_camera(content, cam, cfg, transforms[ci], ci)
+        g = None if gains is None else gains[ci]
+        r = render_camera(content, cam, cfg, transforms[ci], ci, gains=g)
         if lenses:
-            frames = render_camera(content, cam, cfg, transforms[ci], ci, rays=lenses[ci].rays).frames
+            frames = render_camera(content, cam, cfg, transforms[ci], ci, rays=lenses[ci].rays, gains=g).frames
             layouts.write_layout_frames(out, layout, cam, lenses[ci].mask(frames),
                                 lambda path, frames: write_video(path, frames, cfg.fps, cfg.codec))
         elif layout == "dynerf":
@@ -324,6 +426,9 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
         np.save(gt / "depth" / f"{cam.name}.npy", r.depth)
         np.save(gt / "flow3d" / f"{cam.name}.npy", r.flow3d)
         np.save(gt / "objects" / f"{cam.name}.npy", r.objects)
+        if transient_labels:
+            np.save(gt / "transient" / f"{cam.name}.npy", np.isin(r.objects, transient_labels).astype(np.uint8))
+        pixels[cam.name] = {o.label: (r.objects == o.label).sum(axis=(1, 2)).tolist() for o in content.objects}
         bounds.append(robust_bounds(r.depth))
         say(f"  {cam.name}: {cfg.n_frames} frames, depth {bounds[-1][0]:.2f}..{bounds[-1][1]:.2f}"
             f" ({time.perf_counter() - start:.1f} s)")
@@ -337,7 +442,8 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
         write_easyvolcap_cameras(out, [cams[k] for k in order])
     _write_json(gt / "scene.json", dict(
         preset=cfg.preset, seed=cfg.seed, layout=layout, fps=cfg.fps, n_frames=cfg.n_frames,
-        params={k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
+        params={k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()
+                if k not in EVENT_DEFAULTS or v != EVENT_DEFAULTS[k]},
         world="x right, y down, z forward (into the room); cameras: OpenCV, x_cam = R X + T",
         camera_names=[c.name for c in cams], test_cameras=[cams[0].name],
         cameras=[dict(name=c.name, K=c.K.tolist(), R=c.R.tolist(), T=c.T.tolist(), width=c.width,
@@ -345,14 +451,25 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
                       **(dict(lens=layouts.lens_metadata(lenses[k])) if lenses else {})) for k, c in enumerate(cams)],
         files=dict(depth="depth/<cam>.npy float32 [F,H,W] camera z-depth at pixel centres",
                    flow3d="flow3d/<cam>.npy float16 [F,H,W,3] world velocity of the visible point, units/s",
-                   objects="objects/<cam>.npy uint8 [F,H,W] 0 = background, k = label of object k"),
+                   objects="objects/<cam>.npy uint8 [F,H,W] 0 = background, k = label of object k",
+                   **(dict(transient="transient/<cam>.npy uint8 [F,H,W] 1 where an object that exists for"
+                                     " part of the clip is visible") if transient_labels else {})),
     ))
+    _write_json(gt / "objects.json", _objects(content, cfg, pixels))
     _write_json(gt / "trajectories.json", _trajectories(content, cfg))
-    _write_json(gt / "color_transforms.json", dict(
-        convention="observed = clip(I @ (I3 + dM) + b + noise); I is an RGB row vector in [0, 1]",
-        noise_sigma=cfg.noise,
-        cameras={c.name: dict(dM=t[0].tolist(), b=t[1].tolist()) for c, t in zip(cams, transforms)},
-    ))
+    if gains is None:
+        _write_json(gt / "color_transforms.json", dict(
+            convention="observed = clip(I @ (I3 + dM) + b + noise); I is an RGB row vector in [0, 1]",
+            noise_sigma=cfg.noise,
+            cameras={c.name: dict(dM=t[0].tolist(), b=t[1].tolist()) for c, t in zip(cams, transforms)},
+        ))
+    else:
+        _write_json(gt / "color_transforms.json", dict(
+            convention="observed = clip((I * gain[frame]) @ (I3 + dM) + b + noise); I is an RGB row vector in [0, 1]",
+            noise_sigma=cfg.noise, exposure_drift=cfg.exposure_drift,
+            cameras={c.name: dict(dM=t[0].tolist(), b=t[1].tolist(), gain=gains[k].tolist())
+                     for k, (c, t) in enumerate(zip(cams, transforms))},
+        ))
     say(f"wrote {layout} scene '{cfg.preset}' ({len(cams)} cameras x {cfg.n_frames} frames, "
         f"{cfg.width}x{cfg.height}) to {out} in {time.perf_counter() - start:.1f} s")
     return out
@@ -378,6 +495,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=float, help="sensor noise sigma (default 0.01)")
     p.add_argument("--speed", type=float, help="motion speed multiplier (default 1)")
     p.add_argument("--codec", help="DyNeRF video codec: ffv1 (lossless, default) or mp4v (lossy)")
+    p.add_argument("--fps", type=float, help="frames per second (default 30; clip length = frames / fps)")
+    p.add_argument("--transients", type=int, help="0-2 still objects that exist for part of the clip")
+    p.add_argument("--flame", type=float, help="flicker strength of a flame-like ball (0 = none)")
+    p.add_argument("--exposure-drift", type=float, dest="exposure_drift",
+                   help="auto-exposure drift strength (1 = log-gain ±0.15, white balance ±0.05)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier synthetic scene in --out")
     return p
 
@@ -385,7 +507,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """``ftgspp synth`` entry point; returns the exit status."""
     args = _parser().parse_args(argv)
-    knobs = ("n_cameras", "n_frames", "width", "height", "hfov_deg", "color_shift", "noise", "speed", "codec")
+    knobs = ("n_cameras", "n_frames", "width", "height", "hfov_deg", "color_shift", "noise", "speed", "codec", "fps",
+             "transients", "flame", "exposure_drift")
     overrides = {k: getattr(args, k) for k in knobs if getattr(args, k) is not None}
     try:
         generate(args.out, layout=args.layout, preset=args.preset, seed=args.seed,

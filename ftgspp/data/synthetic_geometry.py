@@ -162,6 +162,29 @@ class MovingSphere:
     texture: Texture  # in (longitude * radius, latitude * radius) coordinates
     spin: float = 0.0
     spin_axis: np.ndarray = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
+    visible: tuple[float, float] = (-np.inf, np.inf)  # [appears, disappears) in seconds
+    flicker: float = 0.0  # strength of a stochastic per-frame change of its colours (a flame)
+    role: str = "moving"  # moving | transient | flame: what the object stands for (objects.json)
+
+    def present(self, t: float) -> bool:
+        """Whether the object exists at time ``t`` (seconds)."""
+        return bool(self.visible[0] <= t < self.visible[1])
+
+    def transient(self) -> bool:
+        """Whether the object exists for only part of the clip."""
+        return bool(np.isfinite(self.visible).any())
+
+    def appearance(self, t: float, points: np.ndarray) -> np.ndarray:
+        """Multiplicative colour change ``[N, 3]`` at time ``t`` of object-frame ``points [N, 3]``:
+        ones, or for a flame a smooth random field redrawn every frame (geometry unchanged)."""
+        if self.flicker == 0:
+            return np.ones_like(points)
+        rng = np.random.default_rng([self.label, int(round(t * 1000))])  # a new draw per time
+        waves = rng.normal(0.0, 3.0, (4, 3))  # 4 plane waves (wave vectors) over the unit sphere
+        phases = rng.uniform(0, 2 * np.pi, 4)
+        field_ = np.sin(points @ waves.T + phases).mean(axis=1)  # [N] in [-1, 1]
+        tint = np.array([1.0, 0.55, 0.2]) * rng.uniform(0.6, 1.0)  # hot colours change the most in red
+        return np.clip(1.0 + self.flicker * field_[:, None] * tint, 0.2, 2.0)
 
     def angular_velocity(self) -> np.ndarray:
         """World-space angular velocity, rad/s, ``[3]``."""

@@ -96,6 +96,8 @@ def cast_objects(content: SceneContent, cam: Camera, dirs: np.ndarray, scale: in
     out = background.copy()
     origin = cam.center
     for obj in content.objects:
+        if not obj.present(time):
+            continue
         c = obj.path.position(time)
         if box_from_rays:
             box = _ray_box(origin, dirs, c, obj.radius)
@@ -120,6 +122,8 @@ def cast_objects(content: SceneContent, cam: Camera, dirs: np.ndarray, scale: in
             lon = np.arctan2(local[:, 2], local[:, 0])
             lat = np.arcsin(np.clip(-local[:, 1], -1.0, 1.0))
             albedo = obj.texture.albedo((lon + np.pi) * obj.radius, lat * obj.radius)
+            if obj.flicker:
+                albedo = np.clip(albedo * obj.appearance(time, local), 0.0, 1.0)
             out.rgb[box][m] = shade(albedo, normal)
         if out.label is not None:
             out.label[box][m] = obj.label

@@ -130,6 +130,8 @@ for _m in (
     Metric("lifetime_partition_contrast"),
     Metric("lifetime_short_share_dynamic"),
     Metric("lifetime_short_share_static"),
+    Metric("lifetime_short_share_transient"),  # scenes with objects that exist for part of the clip
+    Metric("lifetime_transient_contrast"),
     Metric("motion_epe_dynamic", better=LOWER),
     Metric("motion_leak_static", better=LOWER),
     Metric("motion_role_switch", better=LOWER),
