@@ -2,7 +2,8 @@
 
 ``git_sha`` is read-only ``git rev-parse`` / ``git status`` ("unknown" outside a checkout).
 ``trainer_fingerprint`` hashes the contents of the files that decide a run's numbers for a
-given config (``ftgspp/**/*.py`` and ``conf/**/*.yaml``): two checkouts with the same
+given config (``ftgspp/**/*.py`` and ``conf/**/*.yaml``, but not ``ftgspp/bench/``: the
+benchmarks never run inside training and do not decide a run's bits): two checkouts with the same
 fingerprint train the same bits in the same determinism domain, whatever else (harness,
 docs, reports) differs. Reports name it, and ``study check`` uses it to say why runs differ.
 """
@@ -38,6 +39,7 @@ def git_sha() -> str:
 
 
 TRAINER_FILES = (("ftgspp", "*.py"), ("conf", "*.yaml"))
+NOT_TRAINER = (("ftgspp", "bench"),)  # folders under TRAINER_FILES that training never imports
 
 
 @functools.lru_cache(maxsize=1)
@@ -46,7 +48,8 @@ def trainer_fingerprint(root: Path = REPO) -> str:
     h = hashlib.sha256()
     for folder, pattern in TRAINER_FILES:
         for path in sorted((root / folder).rglob(pattern)):
-            if "__pycache__" not in path.parts:
+            rel = path.relative_to(root).parts
+            if "__pycache__" not in rel and not any(rel[: len(skip)] == skip for skip in NOT_TRAINER):
                 h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()[:12]
 

@@ -94,3 +94,19 @@ def test_runs_of_one_scene_starting_together_all_get_the_dataset(workdir: Path) 
     for run_id in run_ids:
         (inp,) = main.client.get_run(run_id).inputs.dataset_inputs
         assert inp.dataset.digest == dataset.dataset.digest
+
+
+def test_trainer_fingerprint_follows_the_training_code_only(tmp_path: Path) -> None:
+    """A change to the trainer's code or configs changes the fingerprint; a change to the
+    benchmarks (never imported by training) or to the harness does not."""
+    from harness.tracking.provenance import trainer_fingerprint
+
+    for rel in ("ftgspp/render/cpu.py", "ftgspp/bench/render.py", "conf/train.yaml", "harness/x.py"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("a = 1\n")
+    base = trainer_fingerprint.__wrapped__(tmp_path)
+    for rel, changes in (("ftgspp/bench/render.py", False), ("harness/x.py", False),
+                         ("ftgspp/render/cpu.py", True), ("conf/train.yaml", True)):
+        (tmp_path / rel).write_text("a = 2\n")
+        assert (trainer_fingerprint.__wrapped__(tmp_path) != base) is changes, rel
+        (tmp_path / rel).write_text("a = 1\n")
