@@ -32,7 +32,7 @@ from harness.spec.files import load_study
 from harness.spec.plan import PlannedRun, plan_runs
 from harness.spec.runs import Selection, command_line, describe_runs, expand
 from harness.spec.study import StudySpec, jobs_speedup
-from harness.tracking.conventions import scene_dataset, source_tags, ui_link
+from harness.tracking.conventions import experiment_tags, scene_dataset, source_tags, ui_link
 from harness.tracking.provenance import git_sha, trainer_fingerprint
 from harness.tracking.records import RunRecord, load_runs, tracking_target
 from harness.tracking.store import Store, check_store
@@ -220,6 +220,8 @@ def run_study(
     store = Store(uri)
     exp_id = store.experiment_id(exp_name)  # created once, before any worker starts
     assert exp_id is not None
+    store.set_experiment_tags(exp_id, experiment_tags(study.question, f"study run {name} --profile {sel.profile}",
+                                                      f"study report {name}"))
     existing = load_runs(store, exp_name, name)
     trainer = trainer_fingerprint() if rerun_stale else ""  # --rerun-stale: runs of older code are not done
     todo, elsewhere = pending(existing, planned, lease_s, trainer)

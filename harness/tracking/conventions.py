@@ -6,7 +6,10 @@
 - ``scene_dataset``: the run's scene as an MLflow dataset input (name, digest = a fingerprint
   of the scene, source = the synthetic generator's arguments or the data folder, profile =
   format and path), so runs can be grouped by dataset.
-- ``ui_link``: where the MLflow UI shows an experiment's training runs;
+- ``ui_link``: where the MLflow UI shows an experiment's training runs, as the study's view
+  (``study_view``: the runs flat, with PSNR, SSIM and LPIPS columns); ``run_link`` one run;
+- ``experiment_note``: the experiment's description (``mlflow.note.content``): the study's
+  question and the command that fills it;
 - ``system_metrics``: MLflow's own ``SystemMetricsMonitor`` (``system/cpu_utilization_percentage``,
   ``system/system_memory_usage_megabytes``, ...) sampling every 15 s; a no-op when psutil
   is missing.
@@ -98,14 +101,65 @@ def system_metrics(run_id: str, tracking_uri: str) -> Iterator[None]:
             monitor.finish()
 
 
+# The MLflow UI (3.x) restores an experiment page's columns, filter and order from an
+# experiment tag ``mlflow.sharedViewState.<key>`` (JSON) when the URL carries
+# ``viewStateShareKey=<key>``: how its "Share" button works. The study sets one such view.
+VIEW_TAG_PREFIX = "mlflow.sharedViewState."
+VIEW_KEY = "ftgspp-study"
+NOTE_TAG = "mlflow.note.content"  # the experiment's description in the UI
+TRAINING_VIEW = "workflowType=machine_learning"  # the training-runs view, not the GenAI one
+VIEW_METRICS = ("psnr", "ssim1", "lpips_alex", "lpips_alex_01", "train_seconds")
+VIEW_TAGS = ("variant", "scene", "seed")
+
+
+def _column(kind: str, name: str) -> str:
+    return f"{kind}.`{name}`"  # the UI's canonical column key
+
+
+def study_view(metrics: tuple[str, ...] = VIEW_METRICS) -> dict[str, Any]:
+    """The view state ``ui_link`` opens: every training run flat (the filter leaves out the
+    invocations' parent runs, which carry no ``variant`` tag), the study's key tags and the
+    headline metrics as columns, newest first."""
+    return {
+        "searchFilter": "tags.variant LIKE '%'",
+        "orderByKey": _column("attributes", "start_time"),
+        "orderByAsc": False,
+        "selectedColumns": [*(_column("tags", t) for t in VIEW_TAGS), *(_column("metrics", m) for m in metrics)],
+    }
+
+
+def experiment_tags(question: str, command: str, report: str) -> dict[str, str]:
+    """The tags that describe a study's experiment in the UI: its description (question, the
+    command that fills it, where its report goes) and the study view ``ui_link`` opens."""
+    note = (f"**{question.strip()}**\n\nRuns are added by `{command}`; the report (tables, plots,"
+            f" verdicts) is written by `{report}`. Every run is one (variant, scene, seed) of the study.")
+    return {NOTE_TAG: note, VIEW_TAG_PREFIX + VIEW_KEY: json.dumps(study_view())}
+
+
+def _ui_base(uri: str) -> str:
+    if uri.startswith(("http://", "https://")):
+        return uri.rstrip("/") + "/"
+    return "http://127.0.0.1:5000/"
+
+
+def _ui_hint(uri: str, url: str) -> str:
+    if uri.startswith(("http://", "https://")):
+        return url
+    return f"mlflow ui --backend-store-uri {uri}, then {url}"
+
+
 def ui_link(uri: str, experiment_id: str) -> str:
-    """Where the experiment's runs table is in the MLflow UI.
+    """Where the experiment's runs table is in the MLflow UI, in the study view.
 
     MLflow 3.17's UI opens every experiment in the GenAI view unless the browser chose
     "Model training" before (it ignores ``mlflow.experimentKind`` there); the
-    ``workflowType`` parameter selects the training-runs view.
+    ``workflowType`` parameter selects the training-runs view, ``viewStateShareKey`` the
+    columns and filter of ``study_view``.
     """
-    page = f"#/experiments/{experiment_id}/runs?workflowType=machine_learning"
-    if uri.startswith(("http://", "https://")):
-        return f"{uri.rstrip('/')}/{page}"
-    return f"mlflow ui --backend-store-uri {uri}, then http://127.0.0.1:5000/{page}"
+    page = f"#/experiments/{experiment_id}/runs?{TRAINING_VIEW}&viewStateShareKey={VIEW_KEY}"
+    return _ui_hint(uri, _ui_base(uri) + page)
+
+
+def run_link(uri: str, experiment_id: str, run_id: str) -> str:
+    """One run's page (overview, metrics, artifacts) in the training-runs view."""
+    return _ui_hint(uri, f"{_ui_base(uri)}#/experiments/{experiment_id}/runs/{run_id}?{TRAINING_VIEW}")

@@ -178,6 +178,11 @@ class Store:
             self.call(self.client.set_experiment_tag, exp.experiment_id, EXPERIMENT_KIND, TRAINING_KIND)
         return exp.experiment_id
 
+    def set_experiment_tags(self, experiment_id: str, tags: dict[str, str]) -> None:
+        """Set (or update) tags of an experiment, e.g. its description and saved view."""
+        for key, value in tags.items():
+            self.call(self.client.set_experiment_tag, experiment_id, key, value)
+
     def create_run(self, experiment_id: str, run_name: str, tags: dict[str, str]) -> str:
         run = self.call(self.client.create_run, experiment_id, tags=tags, run_name=run_name)
         return run.info.run_id

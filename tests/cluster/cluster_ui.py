@@ -17,6 +17,7 @@ from pathlib import Path
 
 from clusterlib import free_port, public_tmpdir, require, wait_http
 
+from harness.tracking.conventions import ui_link
 from harness.tracking.records import load_runs, open_store
 
 BIN = Path(sys.executable).parent
@@ -58,9 +59,11 @@ def test_mlflow_ui_shows_runs_sources_datasets_metrics_and_artifacts() -> None:
             "3_child_metrics": f"{base}/#/experiments/{exp_id}/runs/{child.run_id}/model-metrics{q}",
             "4_child_artifacts": f"{base}/#/experiments/{exp_id}/runs/{child.run_id}/artifacts{q}",
             "0_default_landing": f"{base}/#/experiments/{exp_id}",
+            "5_study_view": ui_link(base, exp_id),  # the link `study run` prints
         }
         must_show = {"1_runs_table": "secret5-smoke-", "2_child_overview": "Datasets",
-                     "3_child_metrics": "dssim1", "4_child_artifacts": "config.yaml", "0_default_landing": ""}
+                     "3_child_metrics": "dssim1", "4_child_artifacts": "config.yaml", "0_default_landing": "",
+                     "5_study_view": ">psnr<"}
         doms = {}
         for name, url in pages.items():
             for _ in range(3):  # a loaded machine may need longer than the virtual-time budget
@@ -78,6 +81,10 @@ def test_mlflow_ui_shows_runs_sources_datasets_metrics_and_artifacts() -> None:
         assert run_inputs[0].dataset.digest in overview and "studio" in overview, "Datasets shows the scene"
         assert "Model metrics" in doms["3_child_metrics"] and "dssim1" in doms["3_child_metrics"]
         assert "config.yaml" in doms["4_child_artifacts"] and "diagnostics" in doms["4_child_artifacts"]
+        view = doms["5_study_view"]  # the runs flat, the parent filtered out, the headline columns
+        assert child.tags["mlflow.runName"] in view and "secret5-smoke-" not in view
+        assert all(f">{col}<" in view for col in ("psnr", "ssim1", "lpips_alex", "variant", "seed"))
+        assert "How much do metrics vary" in view, "the experiment's description"
     finally:
         os.killpg(ui.pid, signal.SIGTERM)
         ui.wait(timeout=60)
