@@ -136,8 +136,10 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     tracker.set_tags({f"determinism.{k}": v for k, v in env.domain.items()})
     torch.manual_seed(cfg.seed)
 
+    clock = time.perf_counter()
     state = TrainState.create(cfg, scene, env.device)
     lpips_net = _lpips_loss_net(cfg, env.device)
+    init_seconds = time.perf_counter() - clock
     ckpt = out_dir / CHECKPOINT
     if cfg.resume and ckpt.exists() and state.load(ckpt):
         log.info("resumed from %s at iteration %d", ckpt, state.step)
@@ -154,8 +156,11 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     # Order matters: the model, then the network-free metrics, are on disk before any
     # optional metric (LPIPS) or diagnostic runs, so none of those can lose the run.
     save_model(model, cc, out_dir)
+    clock = time.perf_counter()
     metrics, artifacts = evaluate(model, scene, cfg, out_dir)
     metrics.update({
+        "init_seconds": init_seconds,  # where a run's time goes besides training (benchmarks/runs_per_hour.py)
+        "eval_seconds": time.perf_counter() - clock,
         "train_seconds": elapsed,
         "iters_per_second": cfg.iterations / elapsed if elapsed > 0 else float("nan"),
         "peak_rss_mb": _peak_rss_mb(),
@@ -163,12 +168,16 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
         "relocated_total": float(state.relocated),
     })
     _write_metrics(out_dir, metrics)
+    clock = time.perf_counter()
     metrics.update(evaluate_lpips(model, scene, cfg))
+    metrics["lpips_seconds"] = time.perf_counter() - clock
     _write_metrics(out_dir, metrics)
     diag_files: list[Path] = []
     if cfg.diagnostics:  # lifetime / velocity / x-t / motion-error plots and the numbers studies tabulate
+        clock = time.perf_counter()
         diag = run_diagnostics(model, scene, cfg, out_dir / "diagnostics")
         metrics.update(diag.metrics())
+        metrics["diagnostics_seconds"] = time.perf_counter() - clock
         diag_files = list(diag.files.values())
     metrics["peak_rss_mb"] = _peak_rss_mb()  # now including evaluation and diagnostics
     _write_metrics(out_dir, metrics)

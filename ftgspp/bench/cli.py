@@ -4,15 +4,21 @@ result as a table or, with ``--json``, as one JSON line.
     ftgspp bench render [--n 5000] [--width 128 --height 96] [--repeats 10] [--json]
     ftgspp bench train [--iterations 200] [--budget 5000] [--repeats 2] [--breakdown] [--json]
     ftgspp bench scale [--counts 1000,5000,20000,100000] [--sizes 128x96,256x192,512x384] [--json]
+
+``render`` and ``train`` take ``--target CPU`` (e.g. ``haswell``, ``znver1``, ``skylake-avx512``):
+the same benchmark in a child process whose Numba kernels are compiled for that LLVM CPU
+(``ftgspp.bench.isa``). Every result names the host's and the kernels' vector ISA.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
+from ftgspp.bench.isa import CHILD_FLAG
 from ftgspp.errors import InputError
 
 
@@ -30,6 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--no-compile-times", action="store_true", help="skip the Numba compile probe")
     render.add_argument("--seed", type=int, default=0)
     render.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
+    render.add_argument("--asm", action="store_true", help="count the vector registers in the raster kernels "
+                        "(compiles them in a child process with an empty cache)")
+    render.add_argument("--target", default="host", help="LLVM CPU to compile the kernels for (default: host)")
     train = sub.add_parser("train", help="whole training iterations of every backend (ftgspp/bench/train.py)")
     train.add_argument("--iterations", type=int, default=200)
     train.add_argument("--budget", type=int, default=5000, help="number of Gaussians")
@@ -39,6 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--backends", default="", help="comma-separated (default: every available one)")
     train.add_argument("--breakdown", action="store_true", help="also time every phase of an iteration")
     train.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
+    train.add_argument("--target", default="host", help="LLVM CPU to compile the kernels for (default: host)")
     scale = sub.add_parser("scale", help="cost of an iteration over Gaussian counts x resolutions")
     scale.add_argument("--counts", default="1000,5000,20000,100000")
     scale.add_argument("--sizes", default="128x96,256x192,512x384")
@@ -56,9 +66,39 @@ def _sizes(text: str) -> list[tuple[int, int]]:
         raise InputError("--sizes", f"expected WxH[,WxH...], got {text!r}") from None
 
 
+def _without_target(argv: list[str]) -> list[str]:
+    """``argv`` minus ``--target X`` / ``--target=X`` and ``--json`` (the child adds its own)."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--target":
+            skip = True
+        elif not a.startswith("--target=") and a != "--json":
+            out.append(a)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``ftgspp bench``. Returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    in_child = os.environ.get(CHILD_FLAG) == "1"
+    if not in_child and (getattr(args, "target", "host") != "host" or getattr(args, "asm", False)):
+        from ftgspp.bench.isa import run_for_target
+
+        result = run_for_target(_without_target(argv), args.target)
+        if args.json:
+            print(json.dumps(result))
+        elif args.command == "render":
+            from ftgspp.bench.render import format_render_table
+
+            print(format_render_table(result))
+        else:
+            from ftgspp.bench.train import format_train_table
+
+            print(format_train_table(result))
+        return 0
     if args.command == "render":
         from ftgspp.bench.render import bench_render, format_render_table
 
@@ -66,6 +106,10 @@ def main(argv: list[str] | None = None) -> int:
             n=args.n, width=args.width, height=args.height, repeats=args.repeats, warmup=args.warmup,
             yardstick_repeats=args.yardstick_repeats, compile_times=not args.no_compile_times, seed=args.seed,
         )  # fmt: skip
+        if args.asm:
+            from ftgspp.bench.isa import kernel_registers
+
+            result["registers"] = kernel_registers()
         print(json.dumps(result) if args.json else format_render_table(result))
         return 0
     if args.command == "train":

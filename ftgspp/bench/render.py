@@ -16,6 +16,7 @@ from typing import Any
 import torch
 
 from ftgspp.bench.compile_probe import COMPILE_KEYS, numba_compile_seconds
+from ftgspp.bench.isa import describe, host_isa
 from ftgspp.bench.scene import project_scene, random_scene
 from ftgspp.bench.stages import time_stages
 from ftgspp.bench.timing import rasterizers, time_backend, time_yardstick
@@ -77,6 +78,7 @@ def bench_render(
         torch_threads=torch.get_num_threads(),
         cpu_count=os.cpu_count(),
         load_average=[load_before, os.getloadavg()[0]],  # 1-minute load before and after (ours included)
+        isa=host_isa(),
     )
     if "cpu" in backends:
         from ftgspp.render import cpu
@@ -93,6 +95,7 @@ def format_render_table(result: dict[str, Any]) -> str:
     lines = [
         f"render: {result['n']} Gaussians ({result['n_visible']} visible), "
         f"{result['width']}x{result['height']}, median of {result['repeats']}",
+        *([describe(result["isa"])] if "isa" in result else []),
         f"{'backend':<11}{'fwd_ms':>12}{'fwd_bwd_ms':>13}{'x yardstick fwd':>17}{'x yardstick fwd+bwd':>21}",
     ]
     rows = dict(result["backends"])
@@ -119,6 +122,9 @@ def format_render_table(result: dict[str, Any]) -> str:
         cold, cached = compile_s["cold_raster_ms"], compile_s["cached_raster_ms"]
         lines.append(f"cpu fwd+bwd at 5k/128x96 in the process that compiled the kernels {cold:.2f} ms, "
                      f"in one that loaded them {cached:.2f} ms ({cold / cached:.2f}x)")
+    if "registers" in result:
+        r = result["registers"]
+        lines.append(f"raster kernels' vector registers: zmm {r['zmm']}, ymm {r['ymm']}, xmm {r['xmm']}")
     if "numba_threading_layer" in result:
         lines.append(f"numba: {result['numba_threads']} threads, layer {result['numba_threading_layer']}")
     if result["load_average"][0] > 0.5 * (result["cpu_count"] or 1):

@@ -22,6 +22,7 @@ from typing import Any
 
 import torch
 
+from ftgspp.bench.isa import describe, host_isa
 from ftgspp.bench.phases import PhaseTimer
 from ftgspp.bench.timing import usable_backends
 from ftgspp.config import DataConfig, TrainConfig
@@ -78,7 +79,7 @@ def bench_train(
     ref = ms.get("reference")
     out = {
         "iterations": iterations, "budget": budget, "width": width, "height": height, "repeats": repeats,
-        "threads": torch.get_num_threads(),
+        "threads": torch.get_num_threads(), "isa": host_isa(),
         "backends": {b: {"ms_per_iter": ms[b], "iters_per_second": 1000.0 / ms[b], "all_ms": per_it[b]}
                      for b in backends},
         "speedup_vs_reference": {b: ref / ms[b] for b in backends} if ref else {},
@@ -93,6 +94,7 @@ def format_train_table(result: dict[str, Any]) -> str:
     lines = [f"training iteration, {result['budget']} Gaussians, {result['width']}x{result['height']}, "
              f"{result['iterations']} iterations x {result['repeats']} repeats (median), "
              f"{result.get('threads', '?')} threads",
+             *([describe(result["isa"])] if "isa" in result else []),
              f"{'backend':<10} {'ms/iter':>9} {'it/s':>8} {'vs reference':>13}"]
     for b, r in result["backends"].items():
         sp = result["speedup_vs_reference"].get(b)

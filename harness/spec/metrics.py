@@ -122,6 +122,11 @@ for _m in (
     Metric("train_seconds", "train time (s)", 1, LOWER, deterministic=False),
     Metric("iters_per_second", "iterations/s", 1, deterministic=False),
     Metric("peak_rss_mb", "peak RSS (MB)", 0, LOWER, deterministic=False),
+    # where a run's time goes besides training (benchmarks/runs_per_hour.py)
+    Metric("init_seconds", "initialisation (s)", 1, LOWER, claimable=False, deterministic=False),
+    Metric("eval_seconds", "evaluation (s)", 1, LOWER, claimable=False, deterministic=False),
+    Metric("lpips_seconds", "LPIPS (s)", 1, LOWER, claimable=False, deterministic=False),
+    Metric("diagnostics_seconds", "diagnostics (s)", 1, LOWER, claimable=False, deterministic=False),
     Metric("n_gaussians", "#Gaussians", 0, LOWER),
     # diagnostics (ftgspp.diagnostics via the trainer)
     Metric("lifetime_long_on_static"),

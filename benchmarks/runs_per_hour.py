@@ -1,0 +1,124 @@
+"""Quick runs per hour, end to end, as a study makes them (issue 23: the figure that buys answers).
+
+Runs a one-variant study of ``--runs`` seeds with ``study run`` in a fresh folder (its own
+SQLite store, scene cache and outputs; ``--jobs`` at a time, 2 by default as the quick
+profiles do) and reports runs per hour, plus where a run's wall time goes: training (the
+trainer's ``train_seconds``), and everything else in the run (start-up, imports, scene
+loading, initialisation, evaluation, LPIPS, diagnostics, MLflow logging), and the study's
+fixed cost before its first run (scene synthesis, kernel warm-up). Nothing is asserted:
+compare figures from one run of this script.
+
+    .venv/bin/python benchmarks/runs_per_hour.py                    # 6 quick runs on studio
+    .venv/bin/python benchmarks/runs_per_hour.py --runs 8 --preset transient --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+STUDY = """name: rph
+question: How many quick runs an hour does this machine make?
+baseline: baseline
+variants:
+  baseline: []
+base_seed: 0
+metrics: [psnr]
+table: {{layout: variants_x_scenes, metrics: [psnr]}}
+plots: []
+profiles:
+  quick:
+    jobs: {jobs}
+    seeds: {runs}
+    overrides: [profile={profile}]
+    scenes:
+      - {{name: {preset}, synth: {{preset: {preset}, seed: 0}}}}
+    command: study run rph --profile quick
+  paper:
+    seeds: 1
+    overrides: [profile=paper]
+    scenes:
+      - {{name: {preset}, synth: {{preset: {preset}, seed: 0}}}}
+"""
+
+
+PHASES = ("init_seconds", "train_seconds", "eval_seconds", "lpips_seconds", "diagnostics_seconds")
+
+
+def summarise(wall_s: float, runs: list[dict], study_start: float) -> dict:
+    """Runs per hour over the whole study and the median split of a run's wall time.
+
+    ``runs``: one dict per finished run with ``start``/``end`` (epoch seconds, MLflow's run
+    times) and the trainer's phase timings (``PHASES``); ``study_start``: when ``study run``
+    was started. ``rest_s`` is the run's wall time the phases do not cover (process start-up,
+    imports, scene loading, logging).
+    """
+    walls = [r["end"] - r["start"] for r in runs]
+    phases = {p: statistics.median(r.get(p, 0.0) for r in runs) for p in PHASES}
+    rest = [w - sum(r.get(p, 0.0) for p in PHASES) for w, r in zip(walls, runs)]
+    return {
+        "runs": len(runs), "wall_s": wall_s, "runs_per_hour": 3600.0 * len(runs) / wall_s,
+        "run_wall_s_median": statistics.median(walls), "phases_s_median": phases,
+        "rest_s_median": statistics.median(rest), "before_first_run_s": min(r["start"] for r in runs) - study_start,
+    }  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", type=int, default=6)
+    p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--preset", default="studio")
+    p.add_argument("--profile", default="quick", help="the trainer profile of each run (quick or smoke)")
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="ftgspp-rph-") as tmp:
+        work = Path(tmp)
+        studies = work / "studies"
+        studies.mkdir()
+        (studies / "rph.yaml").write_text(STUDY.format(jobs=args.jobs, runs=args.runs, profile=args.profile,
+                                                       preset=args.preset))
+        env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
+        env.update(FTGSPP_STUDIES=str(studies), PYTHONPATH=str(ROOT))
+        start = time.time()
+        proc = subprocess.run([sys.executable, "-m", "harness.cli.study", "run", "rph", "--profile", "quick"],
+                              cwd=work, env=env, capture_output=True, text=True)
+        wall = time.time() - start
+        if proc.returncode != 0:
+            print(proc.stdout[-2000:] + proc.stderr[-2000:], file=sys.stderr)
+            return 1
+        from harness.tracking.records import load_runs, open_store
+
+        store = open_store(f"sqlite:///{work / 'mlflow.db'}")
+        runs = []
+        for rec in load_runs(store, "ftgspp/rph", "rph"):
+            if rec.status == "FINISHED":
+                info = store.client.get_run(rec.run_id).info
+                runs.append({"start": info.start_time / 1000.0, "end": info.end_time / 1000.0,
+                             **{p: rec.metrics[p] for p in PHASES if p in rec.metrics}})
+    result = {**summarise(wall, runs, start), "jobs": args.jobs, "preset": args.preset, "profile": args.profile,
+              "cpu_count": os.cpu_count(), "load_average_after": os.getloadavg()[0]}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{result['runs']} {args.profile} runs on {args.preset}, {args.jobs} at a time: {wall / 60:.1f} min,"
+              f" {result['runs_per_hour']:.0f} runs per hour")
+        ph = result["phases_s_median"]
+        print(f"per run (medians, s): wall {result['run_wall_s_median']:.1f}; " + ", ".join(
+            f"{p.removesuffix('_seconds')} {ph[p]:.1f}" for p in PHASES)
+            + f", the rest (start-up, imports, loading, logging) {result['rest_s_median']:.1f}")
+        print(f"before the first run: {result['before_first_run_s']:.1f} s (scene synthesis, kernel warm-up)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
