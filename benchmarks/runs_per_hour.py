@@ -52,7 +52,7 @@ profiles:
 """
 
 
-PHASES = ("init_seconds", "train_seconds", "eval_seconds", "lpips_seconds", "diagnostics_seconds")
+PHASES = ("init_seconds", "train_seconds", "eval_seconds", "eval_lpips_seconds", "diagnostics_seconds")
 
 
 def summarise(wall_s: float, runs: list[dict], study_start: float) -> dict:

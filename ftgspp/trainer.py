@@ -170,7 +170,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     _write_metrics(out_dir, metrics)
     clock = time.perf_counter()
     metrics.update(evaluate_lpips(model, scene, cfg))
-    metrics["lpips_seconds"] = time.perf_counter() - clock
+    metrics["eval_lpips_seconds"] = time.perf_counter() - clock
     _write_metrics(out_dir, metrics)
     diag_files: list[Path] = []
     if cfg.diagnostics:  # lifetime / velocity / x-t / motion-error plots and the numbers studies tabulate

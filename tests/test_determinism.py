@@ -32,8 +32,8 @@ MACHINES = {
     # Numba kernels compiled for the x86-64 baseline (SSE2, no AVX) instead of this host's ISA
     "sse2_numba": {"NUMBA_CPU_NAME": "generic"},
 }
-TIMING = {"train_seconds", "iters_per_second", "peak_rss_mb", "init_seconds", "eval_seconds", "lpips_seconds",
-          "diagnostics_seconds"}
+TIMING = {"train_seconds", "iters_per_second", "peak_rss_mb", "init_seconds", "eval_seconds",
+          "eval_lpips_seconds", "diagnostics_seconds"}
 
 
 def train_in(env_extra: dict[str, str], mode: str, scene: Path, out: Path) -> tuple[dict, dict, dict]:

@@ -125,7 +125,7 @@ for _m in (
     # where a run's time goes besides training (benchmarks/runs_per_hour.py)
     Metric("init_seconds", "initialisation (s)", 1, LOWER, claimable=False, deterministic=False),
     Metric("eval_seconds", "evaluation (s)", 1, LOWER, claimable=False, deterministic=False),
-    Metric("lpips_seconds", "LPIPS (s)", 1, LOWER, claimable=False, deterministic=False),
+    Metric("eval_lpips_seconds", "LPIPS (s)", 1, LOWER, claimable=False, deterministic=False),
     Metric("diagnostics_seconds", "diagnostics (s)", 1, LOWER, claimable=False, deterministic=False),
     Metric("n_gaussians", "#Gaussians", 0, LOWER),
     # diagnostics (ftgspp.diagnostics via the trainer)

@@ -39,9 +39,10 @@ def test_breakdown_covers_the_pipeline_and_adds_up(capsys):
     assert all(v >= 0 for k, v in cpu.items() if k != "other (Python, glue)")
     lines = format_train_table(out).splitlines()  # the table: one row per backend, one per phase, a total
     assert lines[0].startswith("training iteration, 200 Gaussians, 64x48, 6 iterations x 1 repeats")
-    assert [line.split()[0] for line in lines[2:4]] == ["cpu", "reference"] and lines[3].split()[-1] == "1.0x"
-    assert lines[5].startswith("per-phase ms per iteration") and lines[6].split()[1:] == ["cpu", "reference"]
-    assert lines[-1].startswith("total") and len(lines) == 7 + len(set(cpu) | set(ref)) + 1
+    assert lines[1].startswith("host ") and "Numba kernels for" in lines[1]  # the ISA it ran with
+    assert [line.split()[0] for line in lines[3:5]] == ["cpu", "reference"] and lines[4].split()[-1] == "1.0x"
+    assert lines[6].startswith("per-phase ms per iteration") and lines[7].split()[1:] == ["cpu", "reference"]
+    assert lines[-1].startswith("total") and len(lines) == 8 + len(set(cpu) | set(ref)) + 1
 
 
 class Pipeline:

@@ -19,7 +19,8 @@ def load():
 
 def test_summary_splits_a_run_into_its_phases_and_the_rest() -> None:
     rph = load()
-    phases = dict(init_seconds=2.0, train_seconds=30.0, eval_seconds=3.0, lpips_seconds=1.0, diagnostics_seconds=4.0)
+    phases = dict(init_seconds=2.0, train_seconds=30.0, eval_seconds=3.0, eval_lpips_seconds=1.0,
+                  diagnostics_seconds=4.0)
     runs = [{"start": 100.0 + 10 * k, "end": 150.0 + 10 * k, **phases} for k in range(4)]  # 50 s each
     out = rph.summarise(wall_s=120.0, runs=runs, study_start=80.0)
     assert out["runs_per_hour"] == pytest.approx(4 * 3600 / 120)
