@@ -7,7 +7,7 @@ SCENE  ?= data/synth/studio
 STAMP  := $(VENV)/.installed
 
 .PHONY: install demo train-quick test weights bench clean reports
-.PHONY: server test-cluster
+.PHONY: server test-cluster gpu-check
 
 # torch 2.13.0 (CPU) goes in first, alone, so nothing later pulls a multi-GB CUDA build.
 $(STAMP): pyproject.toml
@@ -70,6 +70,12 @@ server: install
 test-cluster: install
 	bash tests/cluster/install.sh
 	$(VENV)/bin/python -m pytest -q -s -p no:cacheprovider tests/cluster/cluster_*.py
+
+# For users with a CUDA GPU: gsplat 1.5.3 (the cuda extra), then parity on its real kernels,
+# a quick run on gsplat vs the cpu backend, and the benches (docs/gpu.md). Prints a verdict.
+gpu-check: install weights
+	$(PIP) install -q -e '.[cuda,test]'
+	$(VENV)/bin/ftgspp check-gpu
 
 bench: install
 	$(VENV)/bin/ftgspp bench render

@@ -79,6 +79,10 @@ class StrategyConfig:
     # MCMC rule: clamp the shared opacity "after" computing the scale factor (gsplat 1.5.3,
     # pinned by the official FreeTimeGS++ code: the paper's behaviour) or "before" (gsplat >= 1.6)
     mcmc_clamp: str = "after"
+    # Adam moments zeroed at relocation: of the "sources" only (gsplat 1.5.3's ``relocate``, the
+    # official code) or of every "moved" Gaussian, sources and destinations (this project before
+    # the gsplat parity work)
+    reset_moments: str = "sources"
 
 
 @dataclass

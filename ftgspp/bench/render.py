@@ -71,7 +71,7 @@ def bench_render(
         result["yardstick"], result["ratios"] = None, {}
     result.update(
         n=n,
-        n_visible=int((inputs["radii"] > 0).sum()),
+        n_visible=int((inputs["radii"] > 0).all(-1).sum()),
         width=width,
         height=height,
         repeats=repeats,

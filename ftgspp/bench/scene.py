@@ -47,7 +47,7 @@ def project_scene(scene: dict[str, Any]) -> dict[str, Any]:
     with torch.no_grad():
         means2d, conics, depths, radii, _ = project(
             scene["means"], scene["quats"], scene["scales"], scene["viewmat"], scene["K"],
-            scene["width"], scene["height"],
+            scene["width"], scene["height"], opacities=scene["opacities"],
         )  # fmt: skip
     return dict(
         means2d=means2d, conics=conics, colors=scene["colors"], opacities=scene["opacities"],

@@ -11,6 +11,7 @@ import torch
 from torch import Tensor
 
 from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
+from ftgspp.render.reference import tile_ranges
 
 
 def dense_rasterize(
@@ -19,7 +20,7 @@ def dense_rasterize(
     colors: Tensor,  # [N, D]
     opacities: Tensor,  # [N]
     depths: Tensor,  # [N]
-    radii: Tensor,  # [N]
+    radii: Tensor,  # [N, 2]
     width: int,
     height: int,
     background: Tensor | None = None,  # [D]
@@ -33,15 +34,9 @@ def dense_rasterize(
     accumulate in the leaves' ``.grad`` and memory stays bounded. Returns detached outputs.
     """
     n = colors.shape[0]
-    tiles_x, tiles_y = -(-width // TILE_SIZE), -(-height // TILE_SIZE)
     order = torch.sort(depths.detach(), stable=True).indices  # [N] front to back
     with torch.no_grad():
-        r = radii.to(means2d.dtype)[order]
-        x, y = means2d.detach()[order].unbind(-1)
-        tx0 = torch.floor((x - r) / TILE_SIZE).clamp(0, tiles_x)
-        tx1 = torch.where(r > 0, torch.floor((x + r + TILE_SIZE - 1) / TILE_SIZE).clamp(0, tiles_x), tx0)
-        ty0 = torch.floor((y - r) / TILE_SIZE).clamp(0, tiles_y)
-        ty1 = torch.floor((y + r + TILE_SIZE - 1) / TILE_SIZE).clamp(0, tiles_y)
+        tx0, tx1, ty0, ty1 = (t[order] for t in tile_ranges(means2d, radii, width, height))
     pix = torch.arange(width * height)
     outs: list[list[Tensor]] = [[], [], []]
     step = max(1, chunk_pairs // max(n, 1))
@@ -61,7 +56,7 @@ def dense_rasterize(
         alpha = torch.where(keep, alpha, 0.0)
         trans = torch.cumprod(1.0 - alpha, dim=-1)  # [P, N] T after each Gaussian
         with torch.no_grad():
-            alive = trans >= T_MIN  # a prefix: T never increases
+            alive = trans > T_MIN  # a prefix: T never increases
         alpha = torch.where(alive, alpha, 0.0)
         trans = torch.cumprod(1.0 - alpha, dim=-1)
         t_before = torch.cat([torch.ones_like(trans[:, :1]), trans[:, :-1]], dim=-1)

@@ -1,13 +1,14 @@
 """One ``render()`` entry point over several rasterization backends.
 
 Backends share the EWA projection (``project.py``, plain PyTorch autograd) and the
-rasterizer contract and conventions of ``contract.py``, and differ in how they composite
-the projected 2D Gaussians:
+rasterizer contract and conventions of ``contract.py`` (gsplat 1.5.3's), and differ in how
+they composite the projected 2D Gaussians:
 
 - ``reference``: pure PyTorch autograd, tile-masked like a tile rasterizer. The oracle.
 - ``cpu``: compiled Numba kernels with a hand-written backward (fast on CPU).
 - ``gsplat``: ``gsplat.rasterization`` on CUDA (optional extra; every gsplat call is in
-  ``gsplat_adapter.py``).
+  ``gsplat_adapter.py``; checked against ``reference`` on CPU by running gsplat's Python
+  code over torch stand-ins of its CUDA ops, ``tests/render/gsplat_standins.py``).
 
 For a ``FreeTimeGaussians`` model, ``view.render_view`` on the ``cpu`` backend replaces
 time evaluation, SH colour and this projection by one fused Numba node (``prepare.py``,
@@ -103,7 +104,8 @@ def render(
     rasterize = _import_backend(name)
     from ftgspp.render.project import project
 
-    means2d, conics, depths, radii, _ = project(means, quats, scales, viewmat, K, width, height, near_plane)
+    means2d, conics, depths, radii, _ = project(means, quats, scales, viewmat, K, width, height, near_plane,
+                                                opacities=opacities)  # fmt: skip
     if means2d.requires_grad:
         means2d.retain_grad()
     image, alpha, depth = rasterize(means2d, conics, colors, opacities, depths, radii, width, height, background)

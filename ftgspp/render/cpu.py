@@ -83,7 +83,7 @@ class _RasterizeCPU(torch.autograd.Function):
     def forward(ctx, means2d, conics, colors, opacities, depths, background, radii, width, height):
         inputs = (means2d, conics, colors, opacities, depths, background)
         arrays = [f32_array(t) for t in inputs]  # views of float32 CPU tensors
-        rad = np.ascontiguousarray(radii.detach().to("cpu", torch.int64).numpy())  # [N]
+        rad = np.ascontiguousarray(radii.detach().to("cpu", torch.int64).numpy())  # [N, 2]
         binning, fwd = _forward(*arrays, rad, width, height)
         # Saved, not copied: editing an input in place before backward raises PyTorch's error.
         ctx.save_for_backward(*inputs)
@@ -124,7 +124,7 @@ def rasterize(
     colors: Tensor,  # [N, D]
     opacities: Tensor,  # [N] in [0, 1]
     depths: Tensor,  # [N]
-    radii: Tensor,  # [N] int, 0 = culled
+    radii: Tensor,  # [N, 2] int, 0 = culled
     width: int,
     height: int,
     background: Tensor | None = None,  # [D]
@@ -139,7 +139,7 @@ def rasterize(
         ("conics", conics, (n, 3)),
         ("opacities", opacities, (n,)),
         ("depths", depths, (n,)),
-        ("radii", radii, (n,)),
+        ("radii", radii, (n, 2)),
     ):
         if tuple(t.shape) != shape:
             raise ValueError(f"{name} must have shape {shape}, got {tuple(t.shape)}")

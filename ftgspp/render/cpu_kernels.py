@@ -5,7 +5,7 @@ power evaluated in the reference rasterizer's rounding order,
 ``power = (-0.5 a) dx dx + (-0.5 c) dy dy - (b dy) dx``, and ``exp`` computed by
 ``exp_clamped`` (pure float32 arithmetic, within 1 ulp of the exact value):
 
-1. ``bin_gaussians`` (serial, O(N + pairs)): each Gaussian with radius > 0 and opacity
+1. ``bin_gaussians`` (serial, O(N + pairs)): each Gaussian with radii > 0 and opacity
    >= 1/255 is listed in every 16x16 tile of its radius box (tile ranges computed exactly as
    the contract says); the (tile, Gaussian) pairs are grouped by tile with a counting sort.
    It also fills a per-Gaussian *span table*: the row and column extent of the ellipse
@@ -50,7 +50,6 @@ from ftgspp.runtime.jit import JIT
 F0 = np.float32(0.0)
 F1 = np.float32(1.0)
 F_HALF = np.float32(0.5)
-F_15 = np.float32(TILE_SIZE - 1)
 F_TILE = np.float32(TILE_SIZE)
 F_ALPHA_MAX = np.float32(ALPHA_MAX)
 F_ALPHA_MIN = np.float32(ALPHA_MIN)
@@ -153,7 +152,7 @@ def bin_gaussians(
     means2d: np.ndarray,  # [N, 2] float32
     conics: np.ndarray,  # [N, 3] float32
     opacities: np.ndarray,  # [N] float32
-    radii: np.ndarray,  # [N] int64
+    radii: np.ndarray,  # [N, 2] int64
     width: int,
     height: int,
 ):
@@ -171,17 +170,21 @@ def bin_gaussians(
     span = np.zeros((n, N_SPAN), np.float64)
     cost = np.zeros(n, np.float64)  # estimated cost of each of the Gaussian's pairs
     for k in prange(n):
-        r = radii[k]
         o = opacities[k]
         mx = means2d[k, 0]
         my = means2d[k, 1]
-        if r <= 0 or not (o >= F_ALPHA_MIN) or not (np.isfinite(mx) and np.isfinite(my)):
+        culled = radii[k, 0] <= 0 or radii[k, 1] <= 0
+        if culled or not (o >= F_ALPHA_MIN) or not (np.isfinite(mx) and np.isfinite(my)):
             continue  # culled, or alpha <= o < 1/255 everywhere
-        fr = np.float32(r)
-        tx0 = min(max(np.floor((mx - fr) / F_TILE), F0), ftx)
-        tx1 = min(max(np.floor((mx + fr + F_15) / F_TILE), F0), ftx)
-        ty0 = min(max(np.floor((my - fr) / F_TILE), F0), fty)
-        ty1 = min(max(np.floor((my + fr + F_15) / F_TILE), F0), fty)
+        # tile range in gsplat's pixel coordinates and rounding order (IntersectTile.cu)
+        cx = (mx + F_HALF) / F_TILE
+        cy = (my + F_HALF) / F_TILE
+        rx = np.float32(radii[k, 0]) / F_TILE
+        ry = np.float32(radii[k, 1]) / F_TILE
+        tx0 = min(max(np.floor(cx - rx), F0), ftx)
+        tx1 = min(max(np.ceil(cx + rx), F0), ftx)
+        ty0 = min(max(np.floor(cy - ry), F0), fty)
+        ty1 = min(max(np.ceil(cy + ry), F0), fty)
         if tx1 <= tx0 or ty1 <= ty0:
             continue
         rect[k, 0] = np.int64(tx0)
@@ -317,8 +320,8 @@ def _forward_step(t, dx, dy, nh_a, nh_c, cb, op):
     al = min(op * exp_clamped(power), F_ALPHA_MAX)
     live = (t > F0) & (power <= F0) & (al >= F_ALPHA_MIN)
     t_next = t * (F1 - al)
-    stop = live & (t_next < F_T_MIN)
-    use = live & (t_next >= F_T_MIN)
+    stop = live & (t_next <= F_T_MIN)
+    use = live & (t_next > F_T_MIN)
     w = al * t if use else F0
     t_new = t_next if use else (F0 if stop else t)
     return w, t_new, stop, use

@@ -26,6 +26,7 @@ from torch import Tensor
 from ftgspp.render import prepare_kernels as _pk
 from ftgspp.render.contract import EPS2D
 from ftgspp.render.cpu import f32_array
+from ftgspp.render.project import tangent_limits
 from ftgspp.runtime.jit import configure_numba
 
 # Model parameters the kernel reads, in kernel argument order.
@@ -47,18 +48,12 @@ class Prepared(NamedTuple):
 
 def camera_row(K: Tensor, width: int, height: int, near_plane: float, eps2d: float) -> np.ndarray:
     """The kernel's camera row (``prepare_kernels.CAM_*``), in project.py's float32 rounding."""
-    f32 = np.float32
     k = K.detach().to("cpu", torch.float32).numpy()
-    fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-    tan_half_x = f32(0.5 * width) / fx
-    tan_half_y = f32(0.5 * height) / fy
     row = np.zeros(_pk.N_CAM, np.float32)
-    row[_pk.CAM_FX], row[_pk.CAM_FY], row[_pk.CAM_CX], row[_pk.CAM_CY] = fx, fy, cx, cy
+    row[_pk.CAM_FX], row[_pk.CAM_FY], row[_pk.CAM_CX], row[_pk.CAM_CY] = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
     row[_pk.CAM_W], row[_pk.CAM_H], row[_pk.CAM_NEAR], row[_pk.CAM_EPS2D] = width, height, near_plane, eps2d
-    row[_pk.CAM_LOX] = -(cx / fx + f32(0.3) * tan_half_x)
-    row[_pk.CAM_HIX] = (f32(width) - cx) / fx + f32(0.3) * tan_half_x
-    row[_pk.CAM_LOY] = -(cy / fy + f32(0.3) * tan_half_y)
-    row[_pk.CAM_HIY] = (f32(height) - cy) / fy + f32(0.3) * tan_half_y
+    lims = tangent_limits(K.detach().to("cpu", torch.float32), width, height)
+    row[_pk.CAM_LOX], row[_pk.CAM_HIX], row[_pk.CAM_LOY], row[_pk.CAM_HIY] = lims
     return row
 
 

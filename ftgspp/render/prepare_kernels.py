@@ -7,7 +7,8 @@ modules, so that the outputs agree with them to float32 rounding:
 
     mean(t) = mu + v (t - mu_t),  phi = g + (1 - g) a  or  a,  a = exp(-0.5 ((t - mu_t) / s)^2)
     opacity = sigmoid(o) phi,      colour = max(sum_k Y_k(dir) sh_k + 0.5, 0)
-    means2d, conics, depths, radii  as in ``project.py`` (culled Gaussians: zeros, radius 0)
+    means2d, conics, depths, radii  as in ``project.py`` (culled Gaussians: zeros, radii 0;
+                                    the opacity-aware radii of ``contract.py``)
 
 ``prepare_backward`` recomputes the forward values of each Gaussian and applies the chain
 rule by hand (the derivation is written next to each step). Each Gaussian's gradients are
@@ -25,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from ftgspp.render.contract import ALPHA_MIN, FAR_PLANE, PIXEL_OFFSET, RADIUS_EXTEND
 from ftgspp.render.sh import C0, C1, C2, C3
 from ftgspp.runtime.jit import JIT
 
@@ -37,6 +39,10 @@ F_HALF = np.float32(0.5)
 F_EPS_DIR = np.float32(1e-8)  # view.py: dirs / norm.clamp_min(1e-8)
 F_EPS_SH = np.float32(1e-12)  # sh.py: dirs / norm.clamp_min(1e-12)
 F_RADIUS_MAX = np.float32(1.0e6)
+F_ALPHA_MIN = np.float32(ALPHA_MIN)
+F_EXTEND = np.float32(RADIUS_EXTEND)
+F_FAR = np.float32(FAR_PLANE)
+F_OFFSET = np.float32(PIXEL_OFFSET)
 SC0 = np.float32(C0)
 SC1 = np.float32(C1)
 SC2 = np.array(C2, np.float32)
@@ -208,6 +214,12 @@ def _mul3(A, B, out, a_t, b_t):
 
 
 @njit(inline="always", **JIT)
+def _in_front(pz, cam):
+    """Whether a camera-space depth lies in gsplat's [near, far] range."""
+    return pz >= cam[CAM_NEAR] and pz <= F_FAR
+
+
+@njit(inline="always", **JIT)
 def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, cam, S):
     """Camera-space centre, clamped tangents, Jacobian and 2D covariance of Gaussian i.
 
@@ -218,7 +230,7 @@ def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, cam, S):
     px = view[0, 0] * mean_x + view[0, 1] * mean_y + view[0, 2] * mean_z + view[0, 3]
     py = view[1, 0] * mean_x + view[1, 1] * mean_y + view[1, 2] * mean_z + view[1, 3]
     pz = view[2, 0] * mean_x + view[2, 1] * mean_y + view[2, 2] * mean_z + view[2, 3]
-    z = pz if pz > cam[CAM_NEAR] else F1
+    z = pz if _in_front(pz, cam) else F1
     u = px / z
     v = py / z
     u_c = min(max(u, cam[CAM_LOX]), cam[CAM_HIX])
@@ -280,7 +292,7 @@ def prepare_forward(
     gate_gamma: np.float32,
 ):
     """Forward pass: (means2d [N, 2], conics [N, 3], colors [N, D], opacities [N], depths [N],
-    radii [N] int32, phi [N], means_t [N, 3]), all float32 but radii."""
+    radii [N, 2] int32, phi [N], means_t [N, 3]), all float32 but radii."""
     n = means.shape[0]
     n_dim = sh0.shape[2]
     means2d = np.empty((n, 2), np.float32)
@@ -288,7 +300,7 @@ def prepare_forward(
     colors = np.empty((n, n_dim), np.float32)
     opac = np.empty(n, np.float32)
     depths = np.empty(n, np.float32)
-    radii = np.empty(n, np.int32)
+    radii = np.empty((n, 2), np.int32)
     phis = np.empty(n, np.float32)
     means_t = np.empty((n, 3), np.float32)
     for blk in prange((n + BLOCK - 1) // BLOCK):
@@ -324,20 +336,27 @@ def prepare_forward(
             m2x = cam[CAM_FX] * u + cam[CAM_CX]
             m2y = cam[CAM_FY] * v + cam[CAM_CY]
             det = ca * cc - cb * cb
-            valid = pz > cam[CAM_NEAR] and det > F0
-            mid = F_HALF * (ca + cc)
-            lam = mid + np.float32(math.sqrt(max(mid * mid - det, F0)))
-            radius = min(np.float32(math.ceil(F3 * np.float32(math.sqrt(max(lam, F0))))), F_RADIUS_MAX)
-            on_screen = m2x + radius > F0 and m2x - radius < width and m2y + radius > F0 and m2y - radius < height
-            if valid and on_screen and radius > F0:
-                radii[i] = np.int32(radius)
+            o = opac[i]
+            keep = _in_front(pz, cam) and det > F0 and o >= F_ALPHA_MIN
+            extend = F0
+            if keep:  # sigmas at which alpha falls to 1/255
+                extend = min(F_EXTEND, np.float32(math.sqrt(F2 * np.float32(math.log(o / F_ALPHA_MIN)))))
+            rx = min(np.float32(math.ceil(extend * np.float32(math.sqrt(max(ca, F0))))), F_RADIUS_MAX)
+            ry = min(np.float32(math.ceil(extend * np.float32(math.sqrt(max(cc, F0))))), F_RADIUS_MAX)
+            gx = m2x + F_OFFSET  # gsplat's pixel coordinates
+            gy = m2y + F_OFFSET
+            on_screen = gx + rx > F0 and gx - rx < width and gy + ry > F0 and gy - ry < height
+            if keep and on_screen and (rx > F0 or ry > F0):
+                radii[i, 0] = np.int32(rx)
+                radii[i, 1] = np.int32(ry)
                 means2d[i, 0] = m2x
                 means2d[i, 1] = m2y
                 conics[i, 0] = cc / det
                 conics[i, 1] = -cb / det
                 conics[i, 2] = ca / det
             else:
-                radii[i] = 0
+                radii[i, 0] = 0
+                radii[i, 1] = 0
                 means2d[i, 0] = F0
                 means2d[i, 1] = F0
                 conics[i, 0] = F0
@@ -366,7 +385,7 @@ def prepare_backward(
     max_duration: np.float32,
     gate_on: bool,
     gate_gamma: np.float32,
-    radii: np.ndarray,  # [N] int32 from the forward pass
+    radii: np.ndarray,  # [N, 2] int32 from the forward pass
     g_means2d: np.ndarray,  # [N, 2] cotangents of the forward outputs
     g_conics: np.ndarray,  # [N, 3]
     g_colors: np.ndarray,  # [N, D]
@@ -416,7 +435,7 @@ def prepare_backward(
             gpx = F0
             gpy = F0
             gpz = g_depths[i]
-            if radii[i] > 0:
+            if radii[i, 0] > 0:
                 # conic = (c, -b, a) / det, det = a c - b^2
                 det = ca * cc - cb * cb
                 id2 = F1 / (det * det)

@@ -8,10 +8,9 @@ written once, differentiably, and shared. Conventions:
 - cov3d = R S S^T R^T with R from the (normalised) quaternion (w, x, y, z), S = diag(scales).
 - cov2d = J W cov3d W^T J^T + eps2d I, with J the Jacobian of the pinhole projection at the
   camera-space centre, evaluated with x/z and y/z clamped to the image extent plus 30% of
-  the half field of view on each side (for a centred principal point: +-1.3 tan(fov/2),
-  as in 3DGS and gsplat).
-- radius = ceil(3 sqrt(lambda_max(cov2d))) pixels; 0 marks a culled Gaussian: depth <=
-  near_plane, det(cov2d) <= 0, or the 3-sigma box entirely outside the image.
+  the half field of view on each side, measured from gsplat's principal point (cx + 0.5).
+- radii [N, 2] per axis and opacity-aware, culling as gsplat 1.5.3 does (the rules are
+  stated once in ``contract.py``); without ``opacities`` the extent is 3.33 sigmas.
 
 Culled Gaussians get zeros in means2d / conics / cov2d and receive exactly zero gradient.
 
@@ -23,7 +22,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ftgspp.render.contract import EPS2D
+from ftgspp.render.contract import ALPHA_MIN, EPS2D, FAR_PLANE, PIXEL_OFFSET, RADIUS_EXTEND
 
 # Radii are clamped here before the int32 cast; a Gaussian this large covers any image.
 _RADIUS_MAX = 1.0e6
@@ -57,10 +56,11 @@ def project(
     height: int,
     near_plane: float = 0.01,
     eps2d: float = EPS2D,
+    opacities: Tensor | None = None,  # [N] in [0, 1]: opacity-aware radii and culling
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     """Project 3D Gaussians into the image.
 
-    Returns ``(means2d [N, 2], conics [N, 3], depths [N], radii [N] int32, cov2d [N, 3])``:
+    Returns ``(means2d [N, 2], conics [N, 3], depths [N], radii [N, 2] int32, cov2d [N, 3])``:
     conics and cov2d are the upper triangles (xx, xy, yy) of the inverse / the 2D covariance
     (low-pass included); depths are the camera-space z of the centres (never masked).
     """
@@ -70,7 +70,7 @@ def project(
     x, y, z = p_cam.unbind(-1)  # [N] each
 
     # Sanitise culled entries *before* the divisions so that no inf/NaN reaches autograd.
-    in_front = z > near_plane  # [N]
+    in_front = (z >= near_plane) & (z <= FAR_PLANE)  # [N]
     z_safe = torch.where(in_front, z, torch.ones_like(z))  # [N]
 
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
@@ -78,11 +78,11 @@ def project(
     v = y / z_safe
     means2d = torch.stack([fx * u + cx, fy * v + cy], dim=-1)  # [N, 2]
 
-    # Jacobian of (fx x/z + cx, fy y/z + cy), with x/z, y/z clamped (3DGS/gsplat).
-    tan_half_x = 0.5 * width / fx
-    tan_half_y = 0.5 * height / fy
-    u_c = torch.clamp(u, -(cx / fx + 0.3 * tan_half_x), (width - cx) / fx + 0.3 * tan_half_x)
-    v_c = torch.clamp(v, -(cy / fy + 0.3 * tan_half_y), (height - cy) / fy + 0.3 * tan_half_y)
+    # Jacobian of (fx x/z + cx, fy y/z + cy), with x/z, y/z clamped as gsplat does, around
+    # its principal point (cx + 0.5, cy + 0.5).
+    lo_x, hi_x, lo_y, hi_y = tangent_limits(K, width, height)
+    u_c = torch.clamp(u, lo_x, hi_x)
+    v_c = torch.clamp(v, lo_y, hi_y)
     zero = torch.zeros_like(z)
     J = torch.stack(
         [
@@ -104,13 +104,20 @@ def project(
     conics = torch.stack([c / det_safe, -b / det_safe, a / det_safe], dim=-1)  # [N, 3]
 
     with torch.no_grad():
-        mid = 0.5 * (a + c)
-        lam_max = mid + torch.sqrt((mid * mid - det).clamp_min(0.0))
-        radius = torch.ceil(3.0 * torch.sqrt(lam_max.clamp_min(0.0))).clamp(max=_RADIUS_MAX)
-        mx, my = means2d.unbind(-1)
-        on_screen = (mx + radius > 0) & (mx - radius < width) & (my + radius > 0) & (my - radius < height)
-        keep = valid & on_screen & (radius > 0)
-        radii = torch.where(keep, radius, torch.zeros_like(radius)).to(torch.int32)  # [N]
+        if opacities is None:
+            extend = torch.full_like(a, RADIUS_EXTEND)
+            bright = torch.ones_like(valid)
+        else:
+            o = opacities.detach().to(a.dtype)
+            bright = o >= ALPHA_MIN
+            ratio = torch.where(bright, o / torch.tensor(ALPHA_MIN, dtype=a.dtype), torch.ones_like(o))
+            extend = torch.sqrt(2.0 * torch.log(ratio)).clamp(max=RADIUS_EXTEND)
+        rx = torch.ceil(extend * torch.sqrt(a.clamp_min(0.0))).clamp(max=_RADIUS_MAX)
+        ry = torch.ceil(extend * torch.sqrt(c.clamp_min(0.0))).clamp(max=_RADIUS_MAX)
+        gx, gy = (means2d + PIXEL_OFFSET).unbind(-1)  # gsplat's pixel coordinates
+        on_screen = (gx + rx > 0) & (gx - rx < width) & (gy + ry > 0) & (gy - ry < height)
+        keep = valid & bright & on_screen & ((rx > 0) | (ry > 0))
+        radii = torch.where(keep.unsqueeze(-1), torch.stack([rx, ry], -1), 0.0).to(torch.int32)  # [N, 2]
 
     keep2 = keep.unsqueeze(-1)
     means2d = torch.where(keep2, means2d, torch.zeros_like(means2d))
@@ -118,3 +125,14 @@ def project(
     cov2d = torch.where(keep2, torch.stack([a, b, c], dim=-1), torch.zeros_like(conics))
     return means2d, conics, z, radii, cov2d
 
+
+def tangent_limits(K: Tensor, width: int, height: int) -> tuple[float, float, float, float]:
+    """Clamp window (lo_x, hi_x, lo_y, hi_y) of x/z and y/z for the Jacobian, as gsplat's
+    ``persp_proj`` computes it (its principal point is ours + 0.5), in the dtype of ``K``."""
+    k = K.detach().cpu()
+    fx, fy = k[0, 0], k[1, 1]
+    cx, cy = k[0, 2] + PIXEL_OFFSET, k[1, 2] + PIXEL_OFFSET
+    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+    lims = (-(cx / fx + 0.3 * tan_x), (width - cx) / fx + 0.3 * tan_x,
+            -(cy / fy + 0.3 * tan_y), (height - cy) / fy + 0.3 * tan_y)  # fmt: skip
+    return tuple(float(v) for v in lims)

@@ -2,19 +2,19 @@
 
 Implements the rasterizer contract of ``ftgspp/render/contract.py`` literally:
 
-1. Each Gaussian with radius r > 0 covers the tiles tx in [tx0, tx1), ty in [ty0, ty1),
-   tx0 = clamp(floor((x - r) / 16), 0, TX), tx1 = clamp(floor((x + r + 15) / 16), 0, TX),
-   computed in the dtype of ``means2d``. A pixel only sees the Gaussians of its tile.
+1. Each Gaussian with radii (rx, ry) > 0 covers the tiles tx in [tx0, tx1), ty in [ty0, ty1),
+   tx0 = clamp(floor(x'/16 - rx/16), 0, TX), tx1 = clamp(ceil(x'/16 + rx/16), 0, TX) with
+   x' = x + 0.5, in float32 (``tile_ranges``). A pixel only sees the Gaussians of its tile.
 2. Per tile, Gaussians are sorted by depth (ties by index).
 3. Per pixel: power = -0.5 (a dx^2 + c dy^2) - b dx dy, skip if power > 0;
-   alpha = min(0.99, o exp(power)), skip if alpha < 1/255; stop (without adding it) at the
-   first Gaussian whose T (1 - alpha) < 1e-4; otherwise add weight alpha T and update T.
+   alpha = min(0.999, o exp(power)), skip if alpha < 1/255; stop (without adding it) at the
+   first Gaussian whose T (1 - alpha) <= 1e-4; otherwise add weight alpha T and update T.
 
 Vectorisation: tiles are processed in chunks; each chunk pads its tiles' depth-sorted
 lists to the chunk's longest list and evaluates every (tile, Gaussian, pixel) triple as a
 dense [tiles, K, 256] tensor. Skipped Gaussians get alpha 0, transmittance is a cumulative
 product of (1 - alpha), and early termination is a mask on it (T never increases, so the
-Gaussians added are exactly those whose T_next >= 1e-4). The masks carry no gradient, so
+Gaussians added are exactly those whose T_next > 1e-4). The masks carry no gradient, so
 autograd gives the exact gradient of this piecewise-smooth function (zero through the 0.99
 clamp where it is active, nothing through the selections).
 
@@ -26,7 +26,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
+from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, PIXEL_OFFSET, T_MIN, TILE_SIZE
 
 # Upper bound on tiles * K * pixels evaluated at once (bounds memory, not results).
 CHUNK_ELEMENTS = 1 << 20
@@ -38,21 +38,23 @@ def tile_grid(width: int, height: int) -> tuple[int, int]:
 
 
 def tile_ranges(means2d: Tensor, radii: Tensor, width: int, height: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Tile rectangle [tx0, tx1) x [ty0, ty1) of each Gaussian; empty when radius is 0.
+    """Tile rectangle [tx0, tx1) x [ty0, ty1) of each Gaussian; empty when a radius is 0.
 
-    means2d [N, 2], radii [N] -> four int64 tensors [N].
+    means2d [N, 2], radii [N, 2] -> four int64 tensors [N]. Float32 arithmetic in the order
+    of gsplat's ``IntersectTile.cu`` (on its pixel coordinates, ours + 0.5).
     """
     tiles_x, tiles_y = tile_grid(width, height)
-    r = radii.to(means2d.dtype)  # [N]
-    x, y = means2d.detach().unbind(-1)  # [N] each
-    tx0 = torch.floor((x - r) / TILE_SIZE).clamp(0, tiles_x).long()
-    tx1 = torch.floor((x + r + TILE_SIZE - 1) / TILE_SIZE).clamp(0, tiles_x).long()
-    ty0 = torch.floor((y - r) / TILE_SIZE).clamp(0, tiles_y).long()
-    ty1 = torch.floor((y + r + TILE_SIZE - 1) / TILE_SIZE).clamp(0, tiles_y).long()
-    culled = radii <= 0
-    tx1 = torch.where(culled, tx0, tx1)
-    ty1 = torch.where(culled, ty0, ty1)
-    return tx0, tx1, ty0, ty1
+    ts = torch.tensor(float(TILE_SIZE), dtype=torch.float32)
+    centre = (means2d.detach().to(torch.float32) + PIXEL_OFFSET) / ts  # [N, 2] in tiles
+    r = radii.to(torch.float32) / ts  # [N, 2]
+    lo = torch.floor(centre - r)
+    hi = torch.ceil(centre + r)
+    limit = torch.tensor([tiles_x, tiles_y], dtype=torch.float32)
+    lo = torch.minimum(lo.clamp_min(0), limit).long()
+    hi = torch.minimum(hi.clamp_min(0), limit).long()
+    culled = (radii <= 0).any(dim=-1)
+    hi = torch.where(culled.unsqueeze(-1), lo, hi)
+    return lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]
 
 
 def tile_intersections(
@@ -117,10 +119,10 @@ def _composite_tiles(
     # trans[:, k] = T before the k-th Gaussian, trans[:, k + 1] = T_next of the k-th.
     ones = torch.ones_like(alpha[:, :1])
     trans = torch.cumprod(torch.cat([ones, 1.0 - alpha], dim=1), dim=1)  # [T, K + 1, 256]
-    # Early termination: T never increases, so the Gaussians with T_next >= T_MIN are exactly
+    # Early termination: T never increases, so the Gaussians with T_next > T_MIN are exactly
     # those before the stop; T before them is unaffected by what the stop discards.
     with torch.no_grad():
-        alive = trans >= T_MIN  # [T, K + 1, 256], a prefix along K
+        alive = trans > T_MIN  # [T, K + 1, 256], a prefix along K
         last = alive.sum(dim=1, keepdim=True) - 1  # [T, 1, 256] index of T_final
     weights = torch.where(alive[:, 1:], alpha * trans[:, :-1], 0.0)  # [T, K, 256] = alpha_k T_k
     accum = torch.einsum("tkp,tkf->tpf", weights, feats[lists])  # [T, 256, F]
@@ -133,7 +135,7 @@ def rasterize(
     colors: Tensor,  # [N, D]
     opacities: Tensor,  # [N] in [0, 1]
     depths: Tensor,  # [N]
-    radii: Tensor,  # [N] int, 0 = culled
+    radii: Tensor,  # [N, 2] int, 0 = culled
     width: int,
     height: int,
     background: Tensor | None = None,  # [D]

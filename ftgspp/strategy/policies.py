@@ -42,6 +42,7 @@ def choose_relocation(
 
 
 MCMC_CLAMPS = ("after", "before")
+MOMENT_RESETS = ("sources", "moved")  # whose Adam moments a relocation zeroes
 
 
 def mcmc_opacity_scale(

@@ -5,7 +5,8 @@
 - ``exact_copy``: dead Gaussians become exact copies of their sources.
 - ``partial_copy``: copy everything but opacity and scale, which the dead Gaussian keeps.
 
-Moments of moved Gaussians (sources and destinations) are zeroed.
+Adam moments of the sources are zeroed (``reset_moments="sources"``, as gsplat 1.5.3's
+``strategy.ops.relocate`` does); ``"moved"`` zeroes the destinations' too.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from torch import nn
 from ftgspp.config import StrategyConfig
 from ftgspp.errors import InputError
 from ftgspp.strategy.ops import copy_gaussians, reset_moments
-from ftgspp.strategy.policies import MCMC_CLAMPS, POLICIES, choose_relocation, mcmc_opacity_scale
+from ftgspp.strategy.policies import MCMC_CLAMPS, MOMENT_RESETS, POLICIES, choose_relocation, mcmc_opacity_scale
 
 
 @dataclass
@@ -29,7 +30,8 @@ class Relocator:
 
     def __post_init__(self) -> None:
         for key, value, allowed in (("relocation", self.cfg.relocation, POLICIES),
-                                    ("mcmc_clamp", self.cfg.mcmc_clamp, MCMC_CLAMPS)):
+                                    ("mcmc_clamp", self.cfg.mcmc_clamp, MCMC_CLAMPS),
+                                    ("reset_moments", self.cfg.reset_moments, MOMENT_RESETS)):
             if value not in allowed:
                 raise InputError(f"strategy.{key}", f"unknown value '{value}' (choose from {', '.join(allowed)})")
 
@@ -39,8 +41,8 @@ class Relocator:
 
     @torch.no_grad()
     def accumulate(self, state: dict[str, torch.Tensor], means2d_grad: torch.Tensor, radii: torch.Tensor) -> None:
-        """Add ‖∇ means2d‖ of the visible Gaussians after a backward pass."""
-        visible = radii > 0
+        """Add ‖∇ means2d‖ of the visible Gaussians (radii [N, 2] > 0) after a backward pass."""
+        visible = (radii > 0).all(dim=-1) if radii.dim() == 2 else radii > 0
         state["grad2d"][visible] += means2d_grad[visible].norm(dim=-1).to(state["grad2d"].device)
         state["count"][visible] += 1
 
@@ -81,5 +83,6 @@ class Relocator:
             copy_gaussians(params, dead, sources)
         else:  # partial_copy
             copy_gaussians(params, dead, sources, keep=("opacities", "scales"))
-        reset_moments(optimizer, params, torch.cat([dead, sources]))
+        moved = sources if self.cfg.reset_moments == "sources" else torch.cat([dead, sources])
+        reset_moments(optimizer, params, moved)
         return len(dead)

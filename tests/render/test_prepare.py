@@ -95,7 +95,8 @@ def torch_path(model: FreeTimeGaussians, cam: Camera, t: float, degree: int) -> 
     dirs = g.means - centre
     dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
     colors = eval_sh(degree, g.sh, dirs)
-    means2d, conics, depths, radii, _ = project(g.means, g.quats, g.scales, viewmat, K, cam.width, cam.height)
+    means2d, conics, depths, radii, _ = project(g.means, g.quats, g.scales, viewmat, K, cam.width, cam.height,
+                                                opacities=g.opacities)  # fmt: skip
     return dict(means2d=means2d, conics=conics, colors=colors, opacities=g.opacities, depths=depths,
                 radii=radii, temporal=g.temporal, means=g.means)  # fmt: skip
 
@@ -144,8 +145,8 @@ def test_matches_autograd_oracle(degree: int, cfg_index: int) -> None:
     out, grads = run(fused_path, model, cam, 0.4, degree)
     ref, ref_grads = run(torch_path, model, cam, 0.4, degree)
     assert torch.equal(out["radii"], ref["radii"].to(out["radii"].dtype))
-    culled = ref["radii"] == 0
-    assert culled.sum() >= 8 and (~culled).sum() >= 50  # both kinds present
+    culled = (ref["radii"] == 0).all(-1)
+    assert culled.sum() >= 8 and (~culled).sum() >= 25  # both kinds present (low o phi(t) culls many)
     assert (ref["colors"] == 0).any()  # some colours clamped
     for name in OUTPUTS:
         torch.testing.assert_close(out[name], ref[name], rtol=1e-5, atol=1e-5, msg=name)
@@ -154,7 +155,9 @@ def test_matches_autograd_oracle(degree: int, cfg_index: int) -> None:
             assert grads[name] is None, name
             continue
         assert grads[name] is not None and grads[name].shape == ref_grads[name].shape, name
-        assert_grad_close(grads[name], ref_grads[name], name)
+        # 2e-4: needles (det / (a c) ~ 1e-2) amplify float32 rounding in both paths; a wrong
+        # derivative is off by O(1)
+        assert_grad_close(grads[name], ref_grads[name], name, rel=2e-4)
     assert (grads["quats"][culled] == 0).all() and (grads["scales"][culled] == 0).all()
     if degree < 3:  # unused SH coefficients get exactly zero gradient
         assert (grads["shN"][:, (degree + 1) ** 2 - 1 :] == 0).all()

@@ -61,8 +61,30 @@ def test_means_depths_and_conics() -> None:
     cov = torch.stack([cov2d[:, 0], cov2d[:, 1], cov2d[:, 1], cov2d[:, 2]], -1).reshape(-1, 2, 2)
     inv = torch.stack([conics[:, 0], conics[:, 1], conics[:, 1], conics[:, 2]], -1).reshape(-1, 2, 2)
     torch.testing.assert_close(cov @ inv, torch.eye(2, dtype=torch.float64).expand(30, 2, 2))
-    lam_max = np.linalg.eigvalsh(cov.numpy())[:, -1]
-    np.testing.assert_array_equal(radii.numpy(), np.ceil(3 * np.sqrt(lam_max)).astype(np.int32))
+    # without opacities, gsplat's widest box: 3.33 standard deviations of each axis
+    sd = np.sqrt(np.stack([cov2d[:, 0].numpy(), cov2d[:, 2].numpy()], -1))
+    np.testing.assert_array_equal(radii.numpy(), np.ceil(3.33 * sd).astype(np.int32))
+
+
+def test_opacity_aware_radii_hold_every_pixel_alpha_reaches_one_255th() -> None:
+    """gsplat's box: every pixel where alpha >= 1/255 lies inside it, and it is one pixel
+    short of the tightest such box at most (checked on a dense sub-pixel grid)."""
+    means, quats, scales = random_gaussians(40, seed=3)
+    opac = torch.linspace(0.003, 1.0, 40, dtype=torch.float64)
+    means2d, conics, _, radii, _ = project(means, quats, scales, look_viewmat(), intrinsics(), W, H, opacities=opac)
+    offs = torch.linspace(-40, 40, 1601, dtype=torch.float64)  # 0.05 px steps
+    dx, dy = torch.meshgrid(offs, offs, indexing="xy")
+    for k in range(40):
+        a, b, c = conics[k].tolist()
+        alpha = opac[k] * torch.exp(-0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy)
+        hit = alpha >= 1 / 255
+        if radii[k, 0] == 0:
+            assert opac[k] < 1 / 255 or not hit.any()
+            continue
+        rx, ry = radii[k].tolist()
+        assert dx[hit].abs().max() <= rx and dy[hit].abs().max() <= ry
+        assert dx[hit].abs().max() > rx - 1.05 and dy[hit].abs().max() > ry - 1.05
+    assert radii[0].tolist() == [0, 0] and (radii[1:] > 0).all()  # 0.003 < 1/255 is culled
 
 
 def pinhole(p_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -99,8 +121,8 @@ def test_jacobian_uses_clamped_direction_outside_the_field_of_view() -> None:
     quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=torch.float64)
     scales = torch.tensor([[2.0, 0.3, 0.5]], dtype=torch.float64)
     _, _, _, radii, cov2d = project(p, quats, scales, viewmat, K, W, H)
-    assert radii[0] > 0
-    u_lim = (W - 31.5) / F + 0.3 * 0.5 * W / F
+    assert (radii[0] > 0).all()
+    u_lim = (W - 32.0) / F + 0.3 * 0.5 * W / F  # gsplat's principal point: cx + 0.5
     fx, z = F, 2.0
     J = np.array([[fx / z, 0, -fx * u_lim / z], [0, F * 1.1 / z, 0.0]])
     expected = J @ np.diag(scales[0].numpy() ** 2) @ J.T + EPS2D * np.eye(2)
@@ -114,9 +136,9 @@ def test_culling_and_zero_gradients_for_culled() -> None:
             [0.0, 0.0, 2.0],  # visible
             [0.0, 0.0, -2.0],  # behind the camera
             [0.0, 0.0, 0.0],  # at the camera centre
-            [0.0, 0.0, 0.01],  # exactly on the near plane
+            [0.0, 0.0, 0.0099],  # just short of the near plane
             [40.0, 0.0, 2.0],  # far off to the side: its 3-sigma box misses the image
-            [0.0, 0.0, 0.02],  # just past the near plane: visible
+            [0.0, 0.0, 0.01],  # exactly on the near plane: visible (gsplat culls z < near only)
         ],
         dtype=torch.float64,
         requires_grad=True,
@@ -124,7 +146,8 @@ def test_culling_and_zero_gradients_for_culled() -> None:
     quats = torch.tensor([[1.0, 0.2, 0.0, 0.1]] * 6, dtype=torch.float64, requires_grad=True)
     scales = torch.full((6, 3), 0.01, dtype=torch.float64, requires_grad=True)
     means2d, conics, depths, radii, cov2d = project(p, quats, scales, viewmat, K, W, H)
-    assert radii.tolist()[:5] == [radii[0].item(), 0, 0, 0, 0] and radii[0] > 0 and radii[5] > 0
+    visible = (radii > 0).all(-1)
+    assert visible.tolist() == [True, False, False, False, False, True]
     (means2d.sum() + conics.sum() + cov2d.sum()).backward()
     for t in (p, quats, scales):
         assert torch.isfinite(t.grad).all()
@@ -154,4 +177,4 @@ def test_isotropic_gaussian_on_axis() -> None:
     var = (F * 0.1 / 4.0) ** 2 + EPS2D
     torch.testing.assert_close(cov2d[0], torch.tensor([var, 0.0, var], dtype=torch.float64))
     torch.testing.assert_close(conics[0], torch.tensor([1 / var, 0.0, 1 / var], dtype=torch.float64))
-    assert radii[0] == math.ceil(3 * math.sqrt(var))
+    assert radii[0].tolist() == [math.ceil(3.33 * math.sqrt(var))] * 2

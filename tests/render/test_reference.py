@@ -28,13 +28,14 @@ def brute_force(means2d, conics, colors, opacities, depths, radii, width, height
     bg = [0.0] * len(col[0]) if background is None else background.tolist()
     rect = {}
     for k in range(len(m)):
-        if r[k] > 0:
-            x, y = m[k]
+        if min(r[k]) > 0:  # gsplat's tile range, on its pixel coordinates (ours + 0.5)
+            x, y = m[k][0] + 0.5, m[k][1] + 0.5
+            rx, ry = r[k]
             rect[k] = (
-                min(max(math.floor((x - r[k]) / 16), 0), tiles_x),
-                min(max(math.floor((x + r[k] + 15) / 16), 0), tiles_x),
-                min(max(math.floor((y - r[k]) / 16), 0), tiles_y),
-                min(max(math.floor((y + r[k] + 15) / 16), 0), tiles_y),
+                min(max(math.floor(x / 16 - rx / 16), 0), tiles_x),
+                min(max(math.ceil(x / 16 + rx / 16), 0), tiles_x),
+                min(max(math.floor(y / 16 - ry / 16), 0), tiles_y),
+                min(max(math.ceil(y / 16 + ry / 16), 0), tiles_y),
             )
     order = sorted(range(len(m)), key=lambda k: (z[k], k))
     image, alpha_img, depth_img = [], [], []
@@ -61,7 +62,7 @@ def brute_force(means2d, conics, colors, opacities, depths, radii, width, height
                     continue
                 t_next = T * (1 - alpha)
                 margin = min(margin, abs(t_next / T_MIN - 1))
-                if t_next < T_MIN:
+                if t_next <= T_MIN:
                     break
                 w = alpha * T
                 c = [ci + w * col[k][ch] for ch, ci in enumerate(c)]
@@ -80,11 +81,11 @@ def brute_force(means2d, conics, colors, opacities, depths, radii, width, height
 # Scenes
 
 
-def conic_and_radius(sx: float, sy: float, rho: float) -> tuple[list[float], int]:
+def conic_and_radius(sx: float, sy: float, rho: float) -> tuple[list[float], list[int]]:
+    """Conic and a 3-sigma box per axis (short of where alpha reaches 1/255: truncation is exercised)."""
     cov = torch.tensor([[sx * sx, rho * sx * sy], [rho * sx * sy, sy * sy]], dtype=torch.float64)
     inv = torch.linalg.inv(cov)
-    radius = math.ceil(3 * math.sqrt(torch.linalg.eigvalsh(cov)[-1].item()))
-    return [inv[0, 0].item(), inv[0, 1].item(), inv[1, 1].item()], radius
+    return [inv[0, 0].item(), inv[0, 1].item(), inv[1, 1].item()], [math.ceil(3 * sx), math.ceil(3 * sy)]
 
 
 def mixed_scene(seed: int = 0, n_random: int = 22):
@@ -105,9 +106,8 @@ def mixed_scene(seed: int = 0, n_random: int = 22):
         (10.0, 8.0, 3.0, 3.0, 0.0, 0.9, 0.5, 0),  # culled (radius 0) in front of everything
         (12.0, 4.0, 2.0, 2.0, 0.2, 0.6, 4.0, None),  # two at the same depth: ties by index
         (12.5, 4.5, 2.5, 1.5, -0.2, 0.6, 4.0, None),
-        (15.5, 12.0, 3.0, 3.0, 0.0, 0.9, 1.5, 1),  # radius 1: tile 0 only, visible in tile 1 if not masked
-        # Opaque stack: stops at the 3rd layer near its centre. (Not two fully opaque layers:
-        # their T = (1 - 0.99)^2 sits exactly on T_MIN, where float32 and float64 disagree.)
+        (14.0, 12.0, 3.0, 3.0, 0.0, 0.9, 1.5, 1),  # radius 1: tile 0 only, visible in tile 1 if not masked
+        # Opaque stack: stops at the 3rd layer near its centre.
         (18.0, 15.0, 6.0, 6.0, 0.0, 0.97, 0.1, None),
         (18.0, 15.0, 6.0, 6.0, 0.0, 0.98, 0.2, None),
         (18.0, 15.0, 6.0, 6.0, 0.0, 1.0, 0.3, None),
@@ -118,10 +118,10 @@ def mixed_scene(seed: int = 0, n_random: int = 22):
     for x, y, sx, sy, rho, o, z, r_override in rows:
         con, rad = conic_and_radius(sx, sy, rho)
         conics.append(con)
-        radii.append(rad if r_override is None else r_override)
+        radii.append(rad if r_override is None else [r_override] * 2)
     conics = torch.tensor(conics, dtype=torch.float64)
     conics[3] = torch.tensor([0.1, 0.5, 0.1])  # not positive definite: power > 0 along a diagonal
-    radii[3] = 12
+    radii[3] = [12, 9]
     colors = torch.rand(n, 3, generator=g, dtype=torch.float64)
     opacities = torch.tensor([r[5] for r in rows], dtype=torch.float64)
     depths = torch.tensor([r[6] for r in rows], dtype=torch.float64)
@@ -152,14 +152,17 @@ def test_chunking_does_not_change_the_result(monkeypatch) -> None:
 
 
 def test_radius_limits_a_gaussian_to_its_tiles() -> None:
-    means2d = torch.tensor([[15.5, 8.0]], dtype=torch.float64)  # px 15 in tile 0, px 16 in tile 1
+    means2d = torch.tensor([[14.0, 8.0]], dtype=torch.float64)  # px 15 in tile 0, px 16 in tile 1
     conics = torch.tensor([[0.25, 0.0, 0.25]], dtype=torch.float64)  # sigma 2 px
     args = (conics, torch.ones(1, 1, dtype=torch.float64), torch.tensor([0.9], dtype=torch.float64),
             torch.ones(1, dtype=torch.float64))  # fmt: skip
-    _, alpha, _ = rasterize(means2d, *args, torch.tensor([1], dtype=torch.int32), W, H)
-    assert alpha[8, 15, 0] > 0.8 and alpha[8, 16, 0] == 0
-    _, alpha, _ = rasterize(means2d, *args, torch.tensor([6], dtype=torch.int32), W, H)
-    torch.testing.assert_close(alpha[8, 16, 0], alpha[8, 15, 0])
+    # x' = 14.5: tiles floor(14.5/16 - 1/16) = 0 to ceil(14.5/16 + 1/16) = 1, exclusive
+    _, alpha, _ = rasterize(means2d, *args, torch.tensor([[1, 1]], dtype=torch.int32), W, H)
+    assert alpha[8, 14, 0] > 0.8 and alpha[8, 15, 0] > 0.5 and alpha[8, 16, 0] == 0
+    _, alpha, _ = rasterize(means2d, *args, torch.tensor([[2, 1]], dtype=torch.int32), W, H)  # ceil(15.5/16 + ...) = 2
+    torch.testing.assert_close(alpha[8, 16, 0], alpha[8, 12, 0])
+    _, alpha, _ = rasterize(means2d, *args, torch.tensor([[6, 0]], dtype=torch.int32), W, H)
+    assert (alpha == 0).all()  # a radius of 0 on either axis culls
 
 
 def test_float32_agrees_with_float64() -> None:
@@ -174,7 +177,7 @@ def test_empty_input_renders_background() -> None:
     bg = torch.tensor([0.1, 0.2], dtype=torch.float64)
     z = torch.zeros(0, dtype=torch.float64)
     image, alpha, depth = rasterize(torch.zeros(0, 2).double(), torch.zeros(0, 3).double(), torch.zeros(0, 2).double(),
-                                    z, z, torch.zeros(0, dtype=torch.int32), W, H, bg)  # fmt: skip
+                                    z, z, torch.zeros(0, 2, dtype=torch.int32), W, H, bg)  # fmt: skip
     torch.testing.assert_close(image, bg.expand(H, W, 2))
     assert (alpha == 0).all() and (depth == 0).all()
 
@@ -190,7 +193,7 @@ def flat_stack(opacities: list[float], conic: float = 1e-8):
     conics = torch.tensor([[conic, 0.0, conic]] * n, dtype=torch.float64)
     colors = torch.eye(n, dtype=torch.float64)  # Gaussian k paints channel k
     depths = torch.arange(1, n + 1, dtype=torch.float64)
-    radii = torch.full((n,), 30_000, dtype=torch.int32)
+    radii = torch.full((n, 2), 30_000, dtype=torch.int32)
     return means2d, conics, colors, torch.tensor(opacities, dtype=torch.float64), depths, radii
 
 
@@ -237,9 +240,9 @@ def small_scene(seed: int):
     conics = torch.tensor(conics, dtype=torch.float64)
     colors = torch.rand(n, 3, generator=g, dtype=torch.float64)
     opacities = torch.rand(n, generator=g, dtype=torch.float64) * 0.6 + 0.3
-    opacities[0] = 1.0  # the 0.99 clamp is active near its centre
+    opacities[0] = 1.0  # the 0.999 clamp may be active near its centre
     depths = torch.rand(n, generator=g, dtype=torch.float64) * 5 + 1
-    radii = torch.full((n,), 12, dtype=torch.int32)  # several tiles each: tile masking is exercised
+    radii = torch.full((n, 2), 12, dtype=torch.int32)  # several tiles each: tile masking is exercised
     return means2d, conics, colors, opacities, depths, radii
 
 
@@ -283,7 +286,8 @@ def test_render_single_isotropic_gaussian() -> None:
     color, bg = torch.tensor([[1.0, 0.5, 0.0]], dtype=torch.float64), torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
     out = render(means, quats, scales, torch.tensor([o], dtype=torch.float64), color, viewmat, K, width, height, bg)
     var = (f * s / z) ** 2 + 0.3  # on the optical axis J = diag(f / z)
-    assert out.radii[0] == math.ceil(3 * math.sqrt(var))
+    extend = math.sqrt(2 * math.log(o * 255))  # where alpha falls to 1/255, in sigmas
+    assert out.radii[0].tolist() == [math.ceil(extend * math.sqrt(var))] * 2
     cols = torch.arange(width, dtype=torch.float64) - 16
     expected_alpha = o * torch.exp(-0.5 * cols**2 / var)
     expected_alpha = torch.where(expected_alpha >= ALPHA_MIN, expected_alpha, 0.0)
@@ -309,7 +313,7 @@ def test_render_behind_camera_is_invisible_with_zero_gradient() -> None:
     means = torch.cat([hidden, visible]).requires_grad_()
     out = render(means, quats, scales, torch.ones(3, dtype=torch.float64), torch.ones(3, 3, dtype=torch.float64),
                  viewmat, K, W, H, bg)  # fmt: skip
-    assert out.radii.tolist()[:2] == [0, 0] and out.radii[2] > 0
+    assert out.radii.tolist()[:2] == [[0, 0], [0, 0]] and (out.radii[2] > 0).all()
     torch.testing.assert_close(out.image, alone.image)
     out.image.sum().backward()
     assert (means.grad[:2] == 0).all() and (scales.grad[:2] == 0).all()

@@ -44,11 +44,13 @@ def mcmc_by_hand(o: float, s: float, n: int, min_opacity: float, clamp: str) -> 
     return min(max(o_new, min_opacity), 1.0 - 1.1920929e-07), o / d * s
 
 
+@pytest.mark.parametrize("reset", ["sources", "moved"])
 @pytest.mark.parametrize("policy", ["mcmc", "exact_copy", "partial_copy"])
-def test_policy_semantics(policy):
+def test_policy_semantics(policy, reset):
     params, opt = make_params()
     before = {k: v.detach().clone() for k, v in params.items()}
-    reloc = Relocator(StrategyConfig(relocation=policy))
+    moments_before = {k: opt.state[p]["exp_avg_sq"].clone() for k, p in params.items()}
+    reloc = Relocator(StrategyConfig(relocation=policy, reset_moments=reset))
     state = reloc.initialize_state(50)
     moved = reloc.step(params, opt, state, torch.Generator().manual_seed(1))
     dead = torch.arange(10)  # make_params kills the first ten
@@ -79,14 +81,16 @@ def test_policy_semantics(policy):
         untouched = torch.ones(50, dtype=torch.bool)
         untouched[torch.cat([dead, sources])] = False
         torch.testing.assert_close(params["scales"][untouched], before["scales"][untouched], rtol=0, atol=0)
-    # moments of moved Gaussians (destinations and sources) are zero, others untouched
-    moved_idx = torch.cat([dead, sources]).unique()
-    for p in params.values():
+    # moments of the sources (gsplat's relocate), or of sources and destinations, are zero;
+    # all others untouched
+    moved_idx = (sources if reset == "sources" else torch.cat([dead, sources])).unique()
+    for name, p in params.items():
         st = opt.state[p]
         assert torch.all(st["exp_avg"][moved_idx] == 0)
         assert torch.all(st["exp_avg_sq"][moved_idx] == 0)
         others = torch.ones(50, dtype=torch.bool)
         others[moved_idx] = False
+        assert torch.equal(st["exp_avg_sq"][others], moments_before[name][others])
         assert torch.all(st["exp_avg_sq"][others] > 0)
 
 

@@ -1,0 +1,205 @@
+"""The gsplat backend against ``reference``, through gsplat 1.5.3's own Python code on CPU.
+
+``gsplat_standins.install`` replaces gsplat's CUDA extension by torch versions of its ops that
+follow the CUDA kernels' conventions; everything else -- ``gsplat.rasterization``,
+``isect_tiles``, ``rasterize_to_pixels``, the autograd functions, ``strategy.ops.relocate`` --
+is gsplat's code, driven by this project's adapters. So these tests show the backends agree
+as they will on a GPU: the adapter's glue, and the conventions ``contract.py`` states.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from ftgspp.render import gsplat_adapter, render
+from ftgspp.render.reference import rasterize as reference_rasterize
+from tests.render.cpu_scenes import assert_grad_close
+from tests.render.gsplat_standins import install
+
+W, H = 64, 48  # 4 x 3 tiles
+
+
+@pytest.fixture
+def gsplat(monkeypatch: pytest.MonkeyPatch):
+    return install(monkeypatch)
+
+
+def awkward_scene(seed: int = 0, n: int = 160) -> dict:
+    """Random Gaussians in front of the camera plus the cases culling must get right: at and
+    just short of the near plane, behind the camera, off-screen (some reaching in), saturated
+    opacities (the 0.999 clamp) and opacities below 1/255."""
+    g = torch.Generator().manual_seed(seed)
+    rand = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
+    z = 1.5 + 4 * rand(n)
+    xy = (rand(n, 2) * 2 - 1) * torch.tensor([0.75, 0.55]) * z[:, None]
+    means = torch.cat([xy, z[:, None]], -1)
+    means[:4] = torch.tensor([[0.0, 0.0, 0.01], [0.001, 0.0, 0.0099], [0.2, 0.1, -2.0], [0.0, 0.0, 0.0]])
+    means[4:10, 0] = torch.tensor([-3.0, -2.2, 2.3, 3.2, -2.5, 2.6]) * means[4:10, 2]  # off-screen, some reach in
+    opacities = 0.05 + 0.9 * rand(n)
+    opacities[10:16] = torch.tensor([1.0, 0.9995, 0.999, 0.0035, 0.0039, 0.004])
+    return dict(
+        means=means, quats=torch.randn(n, 4, generator=g), scales=0.02 + 0.12 * rand(n, 3),
+        opacities=opacities, colors=rand(n, 3), background=torch.tensor([0.1, 0.3, 0.6]),
+    )  # fmt: skip
+
+
+def camera() -> tuple[torch.Tensor, torch.Tensor]:
+    viewmat = torch.eye(4)
+    K = torch.tensor([[52.0, 0.0, 31.5], [0.0, 50.0, 23.5], [0.0, 0.0, 1.0]])
+    return viewmat, K
+
+
+def render_with(backend: str, scene: dict, module=None):
+    """Render ``scene`` and backpropagate a fixed random projection of every output."""
+    leaves = {k: v.clone().requires_grad_(True) for k, v in scene.items() if k != "background"}
+    viewmat, K = camera()
+    args = (leaves["means"], leaves["quats"], leaves["scales"], leaves["opacities"], leaves["colors"], viewmat, K, W, H)
+    if backend == "gsplat":  # the adapter itself: its CUDA check lives in resolve_backend
+        out = gsplat_adapter.render(*args, scene["background"], 0.01)
+    else:
+        out = render(*args, scene["background"], backend=backend, near_plane=0.01)
+    g = torch.Generator().manual_seed(5)
+    cot = [torch.randn(t.shape, generator=g) for t in (out.image, out.alpha, out.depth)]
+    torch.autograd.backward([out.image, out.alpha, out.depth], cot)
+    grads = {k: v.grad for k, v in leaves.items()} | {"means2d": out.means2d.grad}
+    return out, grads
+
+
+def test_adapter_matches_reference_images_and_gradients(gsplat) -> None:
+    scene = awkward_scene()
+    out, grads = render_with("gsplat", scene)
+    ref, ref_grads = render_with("reference", scene)
+    visible = (ref.radii > 0).all(-1)
+    assert visible[0] and not visible[1:4].any()  # on the near plane: kept; short of it, behind, at 0: culled
+    assert not visible[13:15].any() and visible[15]  # below 1/255: culled
+    assert torch.equal(out.radii, ref.radii)
+    for name in ("image", "alpha", "depth"):  # depth is in scene units (up to ~5 here): relative
+        scale = max(1.0, getattr(ref, name).abs().max().item())
+        diff = (getattr(out, name) - getattr(ref, name)).abs().max().item()
+        assert diff <= 1e-5 * scale, f"{name}: max difference {diff:.3g} (scale {scale:.3g})"
+    assert (ref.alpha > 0.99).any() and (ref.alpha < 0.5).any()
+    torch.testing.assert_close(out.means2d, ref.means2d, rtol=0, atol=1e-4)
+    torch.testing.assert_close(out.depths, ref.depths, rtol=1e-6, atol=0)
+    for name in ("means", "quats", "scales", "opacities", "colors", "means2d"):
+        assert_grad_close(grads[name], ref_grads[name], name)
+
+
+def test_cpu_backend_matches_the_adapter(gsplat) -> None:
+    scene = awkward_scene(1)
+    out, grads = render_with("gsplat", scene)
+    cpu, cpu_grads = render_with("cpu", scene)
+    assert torch.equal(out.radii, cpu.radii)
+    assert (out.image - cpu.image).abs().max() <= 1e-5
+    for name in ("means", "quats", "scales", "opacities", "colors"):
+        assert_grad_close(cpu_grads[name], grads[name], name)
+
+
+def test_culled_gaussians_come_back_finite(gsplat) -> None:
+    """gsplat leaves culled entries uninitialised (NaN in the stand-in); the adapter masks them."""
+    scene = awkward_scene(2)
+    out, grads = render_with("gsplat", scene)
+    culled = (out.radii == 0).any(-1)
+    assert culled.sum() >= 5
+    assert torch.isfinite(out.means2d).all() and torch.isfinite(out.depths).all()
+    assert (out.means2d[culled] == 0).all() and (grads["means2d"][culled] == 0).all()
+    assert all(torch.isfinite(g).all() for g in grads.values())
+
+
+def test_bench_adapter_matches_reference(gsplat) -> None:
+    """``ftgspp bench render``'s gsplat rasterizer on the bench's own projected scene."""
+    from ftgspp.bench.scene import project_scene, random_scene
+
+    inputs = project_scene(random_scene(300, 80, 56))
+    names = ("means2d", "conics", "colors", "opacities", "depths")
+    outs = {}
+    for key, fn in (("gsplat", gsplat_adapter.rasterize), ("reference", reference_rasterize)):
+        leaves = {k: inputs[k].clone().requires_grad_(True) for k in names}
+        image, alpha, depth = fn(*leaves.values(), inputs["radii"], inputs["width"], inputs["height"],
+                                 inputs["background"])  # fmt: skip
+        (image.sum() + 0.5 * alpha.sum() + 0.1 * depth.sum()).backward()
+        outs[key] = (image, alpha, depth, {k: v.grad for k, v in leaves.items()})
+    for a, b in zip(outs["gsplat"][:3], outs["reference"][:3]):
+        assert (a - b).abs().max() <= 1e-5
+    for name in names:
+        assert_grad_close(outs["gsplat"][3][name], outs["reference"][3][name], name)
+
+
+def test_relocation_matches_gsplat_relocate(gsplat, monkeypatch: pytest.MonkeyPatch) -> None:
+    """This project's MCMC relocation and gsplat's ``strategy.ops.relocate`` (the official code's)
+    on the same dead Gaussians and sources: same parameters, same Adam moments."""
+    from gsplat.strategy import ops as gs_ops
+    from torch import nn
+
+    import ftgspp.strategy.relocate as ours
+    from ftgspp.config import StrategyConfig
+    from ftgspp.strategy import Relocator
+
+    n = 40
+    g = torch.Generator().manual_seed(0)
+    init = {
+        "means": torch.randn(n, 3, generator=g), "scales": torch.randn(n, 3, generator=g) - 2,
+        "quats": torch.randn(n, 4, generator=g), "opacities": torch.randn(n, generator=g),
+        "velocities": torch.randn(n, 3, generator=g),
+    }  # fmt: skip
+    init["opacities"][:6] = -9.0  # dead
+    dead = torch.arange(6)
+    sources = torch.tensor([10, 10, 17, 25, 25, 25])  # shared sources: n = 3 and 4 in Eq. 9
+
+    def trained(single: bool):
+        params = nn.ParameterDict({k: nn.Parameter(v.clone()) for k, v in init.items()})
+        if single:
+            opts = torch.optim.Adam([{"params": [p], "name": k} for k, p in params.items()], lr=1e-2)
+        else:
+            opts = {k: torch.optim.Adam([p], lr=1e-2) for k, p in params.items()}
+        for step in range(3):
+            loss = sum(((p - 0.1 * step) ** 2).sum() for p in params.values())
+            loss.backward()
+            for o in [opts] if single else opts.values():
+                o.step()
+                o.zero_grad()
+        return params, opts
+
+    params, opt = trained(single=True)
+    monkeypatch.setattr(ours, "choose_relocation", lambda *a, **k: (dead, sources))
+    Relocator(StrategyConfig(relocation="mcmc")).step(params, opt, Relocator(StrategyConfig()).initialize_state(n),
+                                                      torch.Generator())  # fmt: skip
+
+    gs_params, gs_opts = trained(single=False)
+    alive = torch.arange(6, n)
+    picks = torch.searchsorted(alive, sources)  # positions of the sources among the alive ones
+    monkeypatch.setattr(gs_ops, "_multinomial_sample", lambda probs, k, replacement=True: picks)
+    n_max = 51
+    binoms = torch.tensor([[math.comb(a, b) if b <= a else 0 for b in range(n_max)] for a in range(n_max)],
+                          dtype=torch.float32)  # fmt: skip
+    mask = torch.zeros(n, dtype=torch.bool)
+    mask[dead] = True
+    gs_ops.relocate(gs_params, gs_opts, {}, mask, binoms, min_opacity=StrategyConfig().min_opacity)
+
+    for name in init:
+        torch.testing.assert_close(params[name].detach(), gs_params[name].detach(), rtol=1e-6, atol=1e-6, msg=name)
+        ours_state, gs_state = opt.state[params[name]], gs_opts[name].state[gs_params[name]]
+        for key in ("exp_avg", "exp_avg_sq"):
+            torch.testing.assert_close(ours_state[key], gs_state[key], rtol=0, atol=0, msg=f"{name} {key}")
+    assert (opt.state[params["means"]]["exp_avg_sq"][dead] > 0).all()  # destinations keep theirs, as in gsplat
+
+
+def test_check_gpu_parity_step_passes_on_the_stand_ins(gsplat) -> None:
+    """``ftgspp check-gpu`` runs this very function on CUDA; here it runs on CPU tensors."""
+    from harness.cli.check_gpu import parity, parity_passes
+
+    diffs = parity("cpu")
+    assert parity_passes(diffs), diffs
+    assert diffs["radii_mismatch"] == 0 and diffs["image"] <= 1e-5
+
+
+def test_check_gpu_without_cuda_is_one_line_and_exit_2() -> None:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "harness.cli.ftgspp_cmd", "check-gpu"], capture_output=True, text=True,
+                          env={**__import__("os").environ, "CUDA_VISIBLE_DEVICES": ""})  # fmt: skip
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0 and "no CUDA device" in proc.stderr
