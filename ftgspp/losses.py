@@ -6,6 +6,7 @@ total = (1 − λ)·L1 + λ·(1 − SSIM) + 0.01·mean(sigmoid(o)·φ(t).detach(
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from ftgspp.metrics import ssim_same
@@ -17,6 +18,17 @@ def photometric(pred: torch.Tensor, gt: torch.Tensor, ssim_weight: float) -> tup
     if ssim_weight == 0:
         return l1, l1
     return (1.0 - ssim_weight) * l1 + ssim_weight * (1.0 - ssim_same(pred, gt)), l1
+
+
+def logged_photometric(pred: torch.Tensor, gt: torch.Tensor) -> tuple[float, float]:
+    """``(L1, MSE)`` of a training view for the logs, summed in float64 by numpy in a fixed order.
+
+    Torch splits large reductions between its threads, so ``.mean().item()`` can change in the
+    last bit with the thread count (``NUMBA_NUM_THREADS`` caps both); these values do not, so
+    logged curves compare bit for bit across machines with different core counts.
+    """
+    d = (pred.detach() - gt.detach()).to("cpu", torch.float64).numpy()
+    return float(np.abs(d).mean()), float(np.square(d).mean())
 
 
 def opacity_4d(base_opacity: torch.Tensor, temporal: torch.Tensor) -> torch.Tensor:

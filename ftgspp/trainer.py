@@ -34,7 +34,7 @@ from ftgspp.data.scene import Scene
 from ftgspp.diagnostics import run_diagnostics
 from ftgspp.errors import InputError
 from ftgspp.evaluate import check_eval_lpips, evaluate, evaluate_lpips
-from ftgspp.losses import gate_penalty, opacity_4d, photometric, scale_penalty
+from ftgspp.losses import gate_penalty, logged_photometric, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
 from ftgspp.render import BACKENDS
@@ -242,12 +242,11 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
         st.step, st.elapsed = step, time.perf_counter() - t0
 
         if step % cfg.log_every == 0 or step == cfg.iterations:
-            with torch.no_grad():
-                mse = (image - gt).pow(2).mean().item()
+            l1, mse = logged_photometric(image, gt)  # the same bits for any thread count
             psnr = -10.0 * math.log10(max(mse, 1e-12))
             rate = (step - start) / max(time.perf_counter() - t_session, 1e-9)
             bar.set_postfix(loss=f"{loss.item():.4f}", psnr=f"{psnr:.2f}", its=f"{rate:.1f}")
-            logged = {"loss": loss.item(), "l1": terms["l1"].item(), "train_psnr": psnr}
+            logged = {"loss": loss.item(), "l1": l1, "train_psnr": psnr}
             if st.cc is not None:  # a colour-gauge drift shows here before the held-out PSNR drops
                 logged["cc_mean_delta"], logged["cc_mean_bias"] = st.cc.mean_transform()
             tracker.log_metrics(logged, step=step)

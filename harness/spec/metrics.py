@@ -109,6 +109,10 @@ for _m in (
     Metric("psnr", "PSNR (dB)", 2),
     Metric("psnr_cc", "PSNR colour-aligned (dB)", 2),
     Metric("train_psnr", "training-view PSNR (dB)", 2),
+    Metric("l1", "training-view L1", 5, LOWER, claimable=False),
+    # torch's reductions over the Gaussians (the regularisers) change in the last bit with the
+    # thread count; l1 and train_psnr are summed by numpy in a fixed order and do not
+    Metric("loss", "training loss", 5, LOWER, claimable=False, deterministic=False),
     Metric("cc_mean_delta", "‖mean ΔM‖ of the colour transforms", 4, NEITHER),
     Metric("cc_mean_bias", "‖mean b‖ of the colour transforms", 4, NEITHER),
     Metric("ssim1", "SSIM (data range 1)", 4),
