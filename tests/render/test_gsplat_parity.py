@@ -16,6 +16,7 @@ import torch
 
 from ftgspp.render import gsplat_adapter, render
 from ftgspp.render.reference import rasterize as reference_rasterize
+from harness.cli.check_gpu import parity_scene
 from tests.render.cpu_scenes import assert_grad_close
 from tests.render.gsplat_standins import install
 
@@ -28,22 +29,10 @@ def gsplat(monkeypatch: pytest.MonkeyPatch):
 
 
 def awkward_scene(seed: int = 0, n: int = 160) -> dict:
-    """Random Gaussians in front of the camera plus the cases culling must get right: at and
-    just short of the near plane, behind the camera, off-screen (some reaching in), saturated
-    opacities (the 0.999 clamp) and opacities below 1/255."""
-    g = torch.Generator().manual_seed(seed)
-    rand = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
-    z = 1.5 + 4 * rand(n)
-    xy = (rand(n, 2) * 2 - 1) * torch.tensor([0.75, 0.55]) * z[:, None]
-    means = torch.cat([xy, z[:, None]], -1)
-    means[:4] = torch.tensor([[0.0, 0.0, 0.01], [0.001, 0.0, 0.0099], [0.2, 0.1, -2.0], [0.0, 0.0, 0.0]])
-    means[4:10, 0] = torch.tensor([-3.0, -2.2, 2.3, 3.2, -2.5, 2.6]) * means[4:10, 2]  # off-screen, some reach in
-    opacities = 0.05 + 0.9 * rand(n)
-    opacities[10:16] = torch.tensor([1.0, 0.9995, 0.999, 0.0035, 0.0039, 0.004])
-    return dict(
-        means=means, quats=torch.randn(n, 4, generator=g), scales=0.02 + 0.12 * rand(n, 3),
-        opacities=opacities, colors=rand(n, 3), background=torch.tensor([0.1, 0.3, 0.6]),
-    )  # fmt: skip
+    """``ftgspp check-gpu``'s scene: random Gaussians plus the cases culling must get right (at
+    and just short of the near plane, behind the camera, off-screen with some reaching in,
+    saturated opacities for the 0.999 clamp, opacities below 1/255), and a background."""
+    return parity_scene("cpu", seed, n) | {"background": torch.tensor([0.1, 0.3, 0.6])}
 
 
 def camera() -> tuple[torch.Tensor, torch.Tensor]:
