@@ -90,9 +90,8 @@ def parity_passes(diffs: dict[str, float]) -> bool:
     )  # fmt: skip
 
 
-def _ftgspp(args: list[str], cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "harness.cli.ftgspp_cmd", *args], capture_output=True, text=True,
-                          cwd=cwd)  # fmt: skip
+def _ftgspp(args: list[str]) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "harness.cli.ftgspp_cmd", *args], capture_output=True, text=True)
 
 
 def _train(scene: Path, out: Path, backend: str, device: str, seed: int) -> dict:
