@@ -6,13 +6,15 @@ interest, the paper's own effect marked), names the families its verdicts are co
 the verdicts per family, and has one row per hypothesis: the paper's numbers and the paper's
 own evidence (is its difference distinguishable from its own spread?), the SESOI, our effect
 with its 95% CI, n and family-corrected p, and the verdict, linked to the study's report.
-Then the speed–accuracy and stability charts, stale reports and studies without runs. The
+Then the speed–accuracy and stability charts, stale reports and studies without runs. A study
+the store has no runs of is read from its report under the reports root (its ``runs.csv``). The
 page carries no timestamp, so the same store gives the same page.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -26,7 +28,7 @@ from harness.report.findings import write_findings
 from harness.report.fmt import p_text, text
 from harness.report.forest import forest_plot
 from harness.report.results import collect
-from harness.spec.files import list_studies
+from harness.spec.files import list_studies, load_study
 from harness.spec.metrics import add_differences
 from harness.spec.study import CLAIM_GROUPS
 from harness.tracking.provenance import trainer_fingerprint
@@ -36,6 +38,7 @@ CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per s
           ("stability", "ladders.png", "Stability ladders: PSNR and failure rate (crash, divergence, collapse) per rung"),
           ("stability", "stability.png", "Stability: PSNR, spread and failure rate per difficulty cell"))
 FOREST = "forest.png"
+CODE_AT = re.compile(r"code at ([0-9a-f]{7,40}(?:, [0-9a-f]{7,40})*)")  # a study page's provenance line
 
 
 @dataclass
@@ -49,6 +52,7 @@ class StudyClaims:
     n_finished: int
     code: str = ""  # git sha(s) of the runs
     fingerprints: tuple[str, ...] = ()  # trainer fingerprints of the finished runs
+    source: str = "tracking store"  # or "committed report" (its runs.csv)
 
 
 def stale_studies(entries: list[StudyClaims], current: str) -> list[tuple[str, str]]:
@@ -110,9 +114,16 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     if missing:
         lines += ["## Studies without runs yet", "", *[f"- `{m}`: `study run {m} --profile quick`" for m in missing],
                   ""]
-    codes = sorted({c for e in entries for c in e.code.split(", ") if c})
-    lines += [f"Runs made by code {', '.join(codes) or 'unknown'}."
-              + (" **More than one code version: regenerate from one.**" if len(codes) > 1 else ""), ""]
+    codes = sorted({c[:7] for e in entries for c in e.code.split(", ") if c})
+    prints = sorted({f for e in entries for f in e.fingerprints})
+    same = (" (the commits differ outside the trainer)" if len(codes) > 1 else "") if len(prints) == 1 else ""
+    lines += [f"Runs made by code {', '.join(codes) or 'unknown'}, trainer fingerprint"
+              f" {', '.join(f'`{f}`' for f in prints) or 'unknown'}{same}."
+              + (" **More than one trainer: regenerate from one.**" if len(prints) > 1 else ""), ""]
+    read = [e.study for e in entries if e.source != "tracking store"]
+    if read:
+        lines += ["Read from their committed reports (`<study>/runs.csv`), the tracking store here having no runs"
+                  " of them: " + ", ".join(f"`{s}`" for s in read) + ".", ""]
     return "\n".join(lines)
 
 
@@ -140,14 +151,44 @@ def collect_study_claims(name: str, studies_dir: Path | None = None) -> StudyCla
                        tuple(data.trainer_fingerprints()))
 
 
+def committed_study_claims(name: str, root: Path, studies_dir: Path | None = None) -> StudyClaims | None:
+    """The study's claims evaluated on the runs of its report under ``root`` (its ``runs.csv``);
+    None when there is no report or none of its runs finished.
+
+    For a study the store has no runs of: the index then covers the reports as they are
+    committed, each made by the code its page names ("code at ..."), and the stale check
+    still compares their trainer fingerprints with this checkout's.
+    """
+    folder = Path(root) / name
+    if not (folder / "runs.csv").is_file():
+        return None
+    df = pd.read_csv(folder / "runs.csv")
+    n_done = int((df.status == "FINISHED").sum())
+    if n_done == 0:
+        return None
+    page = (folder / "index.md").read_text() if (folder / "index.md").is_file() else ""
+    code = m.group(1).strip() if (m := CODE_AT.search(page)) else ""
+    done = df[df.status == "FINISHED"]
+    recorded = done["trainer_fingerprint"] if "trainer_fingerprint" in done else pd.Series([""] * len(done))
+    prints = sorted({str(f) if isinstance(f, str) and f else "unrecorded" for f in recorded})
+    study = load_study(name, studies_dir)
+    frame = V.evaluate(add_differences(df), study.claims)
+    return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),
+                       n_done, code, tuple(prints), source="committed report")
+
+
 def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | None = None,
                        echo: Callable[[str], None] = print) -> Path:
-    """Write ``reports_root/index.md`` over every study in ``studies_dir``; return its path."""
+    """Write ``reports_root/index.md`` over every study in ``studies_dir``; return its path.
+
+    Each study's claims come from its runs in the tracking store, or, when the store has none,
+    from its report already under ``reports_root`` (``committed_study_claims``).
+    """
     root = Path(reports_root)
     root.mkdir(parents=True, exist_ok=True)
     entries, missing = [], []
     for name in list_studies(studies_dir):
-        entry = collect_study_claims(name, studies_dir)
+        entry = collect_study_claims(name, studies_dir) or committed_study_claims(name, root, studies_dir)
         (entries.append(entry) if entry is not None else missing.append(name))
     entries = decide_all(entries)
     with_runs = {e.study for e in entries}

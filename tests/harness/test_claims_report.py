@@ -85,7 +85,7 @@ def test_index_page_names_its_families_and_shows_the_paper_beside_us():
     assert page.index("![Every claim") < page.index("## Families") < page.index("| secret5 |")
     assert "Studies with runs but no claims: [lpips](lpips/index.md)" in page
     assert "![Speed](speed_accuracy/speed_accuracy.png)" in page and "`secret3`" in page
-    assert "Runs made by code abc123." in page and "More than one" not in page
+    assert "Runs made by code abc123, trainer fingerprint unknown." in page and "More than one" not in page
     assert index_markdown(entries, [], []) == index_markdown(entries, [], [])  # no timestamp
 
 
@@ -136,3 +136,12 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     assert sum(line.startswith("| mini |") for line in page.splitlines()) == 4
     assert "[mini](mini/index.md)" in page and "`later`: `study run later --profile quick`" in page
     assert main(["index", "--out", "reports"]) == 0 and Path("reports/index.md").read_text() == page  # same page
+
+    def rows(text: str) -> list[str]:
+        return [line for line in text.splitlines() if line.startswith("| mini |")]
+
+    Path("mlflow.db").rename("elsewhere.db")  # a checkout without the runs: the committed report speaks for them
+    assert main(["index", "--out", "reports"]) == 0
+    again = Path("reports/index.md").read_text()
+    assert rows(again) == rows(page) and "the tracking store here having no runs of them: `mini`." in again
+    assert "Read from their committed reports" not in page
