@@ -1,10 +1,11 @@
 """``reports/findings.json``: every number ``reports/FINDINGS.md`` may cite, made from the reports.
 
 ``collect_findings(root)`` reads the generated files under ``root`` (each study's
-``summary.csv``, ``variance.csv``, ``ladders.csv``, ``speed_accuracy_smallest.csv`` and the
-index's ``claims.csv``) and names every value: ``ablation.claims.flow_improves.effect``,
+``summary.csv``, ``runs.csv``, ``variance.csv``, ``ladders.csv``, ``speed_accuracy_smallest.csv``
+and the index's ``claims.csv``) and names every value: ``ablation.claims.flow_improves.effect``,
 ``secret5.psnr.cc.studio.mean``, ``stability.psnr.diff.ftgspp.base-speed4`` (the difference of
-two cells' means), ... ``write_findings`` saves them as JSON.
+two cells' means), ``secret4.median.relocated_total.mcmc.studio`` (the median over a cell's
+finished runs of any logged number, tabled or not), ... ``write_findings`` saves them as JSON.
 
 FINDINGS.md cites a number with the key it comes from, in an HTML comment right after it
 (invisible when rendered): ``+0.77<!--ablation.claims.flow_improves.effect-->``; ``|abs``
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import pandas as pd
 
-NUMBER = re.compile(r"(?<![\w.`/#-])([+\-−]?\d+\.\d+)(?:<!--([\w.\-|:]+)-->)?")
+NUMBER = re.compile(r"(?<![\w.`/#-])([+\-−]?\d+\.\d+)(?:<!--([\w.\-|:\[\]]+)-->)?")
 
 
 def _put(out: dict[str, float], key: str, value: object) -> None:
@@ -58,6 +59,16 @@ def _table(study: str, path: Path, kind: str, keys: list[str], out: dict[str, fl
                 _put(out, f"{study}.{kind}.{name}.{col}", value)
 
 
+def _medians(study: str, path: Path, out: dict[str, float]) -> None:
+    df = pd.read_csv(path)
+    done = df[df.status == "FINISHED"]
+    skip = {"seed", "budget", "iterations", "lr.scale", "torch_threads"}
+    cols = [c for c in done.select_dtypes("number").columns if c not in skip and not c.startswith("system/")]
+    for (variant, scene), cell in done.groupby(["variant", "scene"]):
+        for col in cols:
+            _put(out, f"{study}.median.{col}.{variant}.{scene}", cell[col].median())
+
+
 def collect_findings(root: Path) -> dict[str, float]:
     """Every named number under ``root`` (a reports folder)."""
     out: dict[str, float] = {}
@@ -65,6 +76,8 @@ def collect_findings(root: Path) -> dict[str, float]:
         study = folder.name
         if (folder / "summary.csv").is_file():
             _summary(study, folder / "summary.csv", out)
+        if (folder / "runs.csv").is_file():
+            _medians(study, folder / "runs.csv", out)
         if (folder / "variance.csv").is_file():
             _table(study, folder / "variance.csv", "variance", ["component"], out)
         if (folder / "ladders.csv").is_file():

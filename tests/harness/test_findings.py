@@ -20,6 +20,9 @@ def _reports(tmp_path: Path) -> Path:
     pd.DataFrame([{"study": "secret5", "id": "cc_raises_mean", "effect": 0.0199, "ci_low": -0.5, "ci_high": 0.55,
                    "sesoi": 0.34, "p": 0.9, "p_adj": 1.0, "p_tost_adj": 0.7, "n_needed": 15}]
                  ).to_csv(tmp_path / "claims.csv", index=False)
+    pd.DataFrame([{"variant": "cc", "scene": "studio", "seed": s, "status": st, "relocated_total": r}
+                  for s, st, r in ((0, "FINISHED", 1500), (1, "FINISHED", 1600), (2, "FINISHED", 1900),
+                                   (3, "FAILED", 10))]).to_csv(tmp_path / "secret5" / "runs.csv", index=False)
     return tmp_path
 
 
@@ -27,6 +30,8 @@ def test_a_cited_number_must_name_the_generated_value_it_comes_from(tmp_path: Pa
     f = collect_findings(_reports(tmp_path))
     assert f["secret5.psnr.cc.studio.std"] == 0.11 and f["secret5.claims.cc_raises_mean.sesoi"] == 0.34
     assert f["secret5.psnr.diff.studio.cc-baseline"] == 29.2612 - 29.2413
+    assert f["secret5.median.relocated_total.cc.studio"] == 1600  # finished runs only
+    assert "secret5.median.seed.cc.studio" not in f
     good = ("Run-to-run SD 0.26<!--secret5.psnr.baseline.studio.std--> dB against 0.11<!--secret5.psnr.cc.studio.std-->;"
             " CC +0.02<!--secret5.claims.cc_raises_mean.effect--> dB (SESOI ±0.34<!--secret5.claims.cc_raises_mean.sesoi-->),"
             " a gap of 0.020<!--secret5.psnr.diff.studio.baseline-cc|abs--> dB. Commit `7fae4f1`, 5 seeds.")
@@ -35,3 +40,4 @@ def test_a_cited_number_must_name_the_generated_value_it_comes_from(tmp_path: Pa
                                                          "1.0: no key says which generated number it is"]
     wrong = check("SD 0.27<!--secret5.psnr.baseline.studio.std--> and 1.5<!--nosuch.key-->", f)
     assert wrong == ["0.27: secret5.psnr.baseline.studio.std is 0.2614", "1.5: unknown key nosuch.key"]
+
