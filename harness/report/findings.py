@@ -4,8 +4,9 @@
 ``summary.csv``, ``runs.csv``, ``variance.csv``, ``ladders.csv``, ``speed_accuracy_smallest.csv``
 and the index's ``claims.csv``) and names every value: ``ablation.claims.flow_improves.effect``,
 ``secret5.psnr.cc.studio.mean``, ``stability.psnr.diff.ftgspp.base-speed4`` (the difference of
-two cells' means), ``secret4.median.relocated_total.mcmc.studio`` (the median over a cell's
-finished runs of any logged number, tabled or not), ... ``write_findings`` saves them as JSON.
+two cells' means), ``secret4.median.relocated_total.mcmc.studio`` (the median, ``min`` or
+``max`` over a cell's finished runs of any logged number, tabled or not), ...
+``write_findings`` saves them as JSON.
 
 FINDINGS.md cites a number with the key it comes from, in an HTML comment right after it
 (invisible when rendered): ``+0.77<!--ablation.claims.flow_improves.effect-->``; ``|abs``
@@ -66,7 +67,8 @@ def _medians(study: str, path: Path, out: dict[str, float]) -> None:
     cols = [c for c in done.select_dtypes("number").columns if c not in skip and not c.startswith("system/")]
     for (variant, scene), cell in done.groupby(["variant", "scene"]):
         for col in cols:
-            _put(out, f"{study}.median.{col}.{variant}.{scene}", cell[col].median())
+            for stat in ("median", "min", "max"):
+                _put(out, f"{study}.{stat}.{col}.{variant}.{scene}", cell[col].agg(stat))
 
 
 def collect_findings(root: Path) -> dict[str, float]:

@@ -31,6 +31,7 @@ def test_a_cited_number_must_name_the_generated_value_it_comes_from(tmp_path: Pa
     assert f["secret5.psnr.cc.studio.std"] == 0.11 and f["secret5.claims.cc_raises_mean.sesoi"] == 0.34
     assert f["secret5.psnr.diff.studio.cc-baseline"] == 29.2612 - 29.2413
     assert f["secret5.median.relocated_total.cc.studio"] == 1600  # finished runs only
+    assert (f["secret5.min.relocated_total.cc.studio"], f["secret5.max.relocated_total.cc.studio"]) == (1500, 1900)
     assert "secret5.median.seed.cc.studio" not in f
     good = ("Run-to-run SD 0.26<!--secret5.psnr.baseline.studio.std--> dB against 0.11<!--secret5.psnr.cc.studio.std-->;"
             " CC +0.02<!--secret5.claims.cc_raises_mean.effect--> dB (SESOI ±0.34<!--secret5.claims.cc_raises_mean.sesoi-->),"
