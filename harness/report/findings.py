@@ -54,7 +54,7 @@ def _summary(study: str, path: Path, out: dict[str, float]) -> None:
 def _table(study: str, path: Path, kind: str, keys: list[str], out: dict[str, float]) -> None:
     df = pd.read_csv(path)
     for _, r in df.iterrows():
-        name = ".".join(str(r[k]) for k in keys)
+        name = ".".join(re.sub(r"[^\w\-]+", "_", str(r[k])).strip("_") for k in keys)  # "hardware (kernel dispatch)"
         for col, value in r.items():
             if col not in keys:
                 _put(out, f"{study}.{kind}.{name}.{col}", value)

@@ -23,6 +23,8 @@ def _reports(tmp_path: Path) -> Path:
     pd.DataFrame([{"variant": "cc", "scene": "studio", "seed": s, "status": st, "relocated_total": r}
                   for s, st, r in ((0, "FINISHED", 1500), (1, "FINISHED", 1600), (2, "FINISHED", 1900),
                                    (3, "FAILED", 10))]).to_csv(tmp_path / "secret5" / "runs.csv", index=False)
+    pd.DataFrame([{"component": "hardware (kernel dispatch)", "sd": 0.069}]).to_csv(tmp_path / "secret5" / "variance.csv",
+                                                                                   index=False)
     return tmp_path
 
 
@@ -33,6 +35,7 @@ def test_a_cited_number_must_name_the_generated_value_it_comes_from(tmp_path: Pa
     assert f["secret5.median.relocated_total.cc.studio"] == 1600  # finished runs only
     assert (f["secret5.min.relocated_total.cc.studio"], f["secret5.max.relocated_total.cc.studio"]) == (1500, 1900)
     assert "secret5.median.seed.cc.studio" not in f
+    assert f["secret5.variance.hardware_kernel_dispatch.sd"] == 0.069  # a key has no spaces or brackets
     good = ("Run-to-run SD 0.26<!--secret5.psnr.baseline.studio.std--> dB against 0.11<!--secret5.psnr.cc.studio.std-->;"
             " CC +0.02<!--secret5.claims.cc_raises_mean.effect--> dB (SESOI ±0.34<!--secret5.claims.cc_raises_mean.sesoi-->),"
             " a gap of 0.020<!--secret5.psnr.diff.studio.baseline-cc|abs--> dB. Commit `7fae4f1`, 5 seeds.")
