@@ -5,8 +5,9 @@
 and the index's ``claims.csv``) and names every value: ``ablation.claims.flow_improves.effect``,
 ``secret5.psnr.cc.studio.mean``, ``stability.psnr.diff.ftgspp.base-speed4`` (the difference of
 two cells' means), ``secret4.median.relocated_total.mcmc.studio`` (the median, ``min`` or
-``max`` over a cell's finished runs of any logged number, tabled or not), ...
-``write_findings`` saves them as JSON.
+``max`` over a cell's finished runs of any logged number, tabled or not),
+``ablation.paper.flow_improves.DyNeRF.a`` (the paper's numbers as the study file states
+them), ... ``write_findings`` saves them as JSON.
 
 FINDINGS.md cites a number with the key it comes from, in an HTML comment right after it
 (invisible when rendered): ``+0.77<!--ablation.claims.flow_improves.effect-->``; ``|abs``
@@ -23,6 +24,7 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 NUMBER = re.compile(r"(?<![\w.`/#-])([+\-−]?\d+\.\d+)(?:<!--([\w.\-|:\[\]]+)-->)?")
@@ -65,15 +67,32 @@ def _medians(study: str, path: Path, out: dict[str, float]) -> None:
     done = df[df.status == "FINISHED"]
     skip = {"seed", "budget", "iterations", "lr.scale", "torch_threads"}
     cols = [c for c in done.select_dtypes("number").columns if c not in skip and not c.startswith("system/")]
-    for (variant, scene), cell in done.groupby(["variant", "scene"]):
-        for col in cols:
-            for stat in ("median", "min", "max"):
-                _put(out, f"{study}.{stat}.{col}.{variant}.{scene}", cell[col].agg(stat))
+    with np.errstate(over="ignore"):  # lifetimes of ungated Gaussians reach float32's max: inf is no finding
+        for (variant, scene), cell in done.groupby(["variant", "scene"]):
+            for col in cols:
+                for stat in ("median", "min", "max"):
+                    _put(out, f"{study}.{stat}.{col}.{variant}.{scene}", cell[col].agg(stat))
 
 
-def collect_findings(root: Path) -> dict[str, float]:
-    """Every named number under ``root`` (a reports folder)."""
+def _paper(out: dict[str, float], studies_dir: Path | None) -> None:
+    """The paper's numbers as the study files state them: ``ablation.paper.flow_improves.DyNeRF.a``."""
+    from harness.spec.files import list_studies, load_study
+
+    for name in list_studies(studies_dir):
+        for claim in load_study(name, studies_dir).claims:
+            for row in claim.paper.rows if claim.paper else ():
+                ds = re.sub(r"[^\w\-]+", "_", row.dataset).strip("_")
+                for field in ("a", "b", "a_std", "b_std", "run_sd"):
+                    _put(out, f"{name}.paper.{claim.id}.{ds}.{field}", getattr(row, field))
+                if row.a is not None and row.b is not None:
+                    _put(out, f"{name}.paper.{claim.id}.{ds}.effect", row.a - row.b)
+
+
+def collect_findings(root: Path, studies_dir: Path | None = None) -> dict[str, float]:
+    """Every named number under ``root`` (a reports folder), and the paper's numbers from the
+    study files (``studies_dir``, default the repository's)."""
     out: dict[str, float] = {}
+    _paper(out, studies_dir)
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
         study = folder.name
         if (folder / "summary.csv").is_file():
@@ -93,10 +112,10 @@ def collect_findings(root: Path) -> dict[str, float]:
     return out
 
 
-def write_findings(root: Path) -> Path:
-    """``root/findings.json`` from the reports under ``root``."""
+def write_findings(root: Path, studies_dir: Path | None = None) -> Path:
+    """``root/findings.json`` from the reports under ``root`` and the study files."""
     path = root / "findings.json"
-    path.write_text(json.dumps(collect_findings(root), indent=1, sort_keys=True) + "\n")
+    path.write_text(json.dumps(collect_findings(root, studies_dir), indent=1, sort_keys=True) + "\n")
     return path
 
 

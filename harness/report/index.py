@@ -201,7 +201,7 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
     forest = forest_plot(allf, root / FOREST) if len(allf) else None
     path = root / "index.md"
     path.write_text(index_markdown(entries, charts, missing, trainer_fingerprint(), FOREST if forest else ""))
-    write_findings(root)  # every number FINDINGS.md may cite (report.findings)
+    write_findings(root, studies_dir)  # every number FINDINGS.md may cite (report.findings)
     n = sum(len(e.frame) for e in entries)
     echo(f"index: {n} claims over {len(entries)} studies with runs ({len(missing)} without) written to {path}")
     return path

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from harness.report.findings import check, collect_findings
 
@@ -36,6 +37,8 @@ def test_a_cited_number_must_name_the_generated_value_it_comes_from(tmp_path: Pa
     assert (f["secret5.min.relocated_total.cc.studio"], f["secret5.max.relocated_total.cc.studio"]) == (1500, 1900)
     assert "secret5.median.seed.cc.studio" not in f
     assert f["secret5.variance.hardware_kernel_dispatch.sd"] == 0.069  # a key has no spaces or brackets
+    assert (f["ablation.paper.flow_improves.DyNeRF.b"], f["ablation.paper.flow_improves.DyNeRF.a"]) == (32.62, 32.73)
+    assert f["ablation.paper.outdoor_psnr.Google_Immersive.effect"] == pytest.approx(22.68 - 22.29)  # the study files
     good = ("Run-to-run SD 0.26<!--secret5.psnr.baseline.studio.std--> dB against 0.11<!--secret5.psnr.cc.studio.std-->;"
             " CC +0.02<!--secret5.claims.cc_raises_mean.effect--> dB (SESOI ±0.34<!--secret5.claims.cc_raises_mean.sesoi-->),"
             " a gap of 0.020<!--secret5.psnr.diff.studio.baseline-cc|abs--> dB. Commit `7fae4f1`, 5 seeds.")
