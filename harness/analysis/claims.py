@@ -179,7 +179,9 @@ def _contrast(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Re
         res = compare_means(values, None, True, claim.sesoi)
         res.detail = " ".join(f"{k:+g}·{v}" for v, k in weights)
         results.append(res)
-    worst = max(results, key=lambda r: r.p)
+    # the contrast least favourable to the claim: the lowest t for "higher", the highest for "lower"
+    # (a contrast clearly against the claim decides it, however clear the others are)
+    worst = min(results, key=lambda r: r.statistic if claim.expect == "higher" else -r.statistic)
     return Result(f"contrasts, one-sample t each; all must hold (intersection–union, p = max of {len(results)})",
                   worst.n, worst.effect, worst.ci, worst.ci90, "t", worst.statistic, worst.p,
                   max(r.p_tost for r in results), worst.needed,

@@ -229,6 +229,12 @@ def test_contrast_claims_hold_only_when_every_contrast_does():
     assert row.effect == pytest.approx(min(0.65 - 0.1, 0.65 - 0.05), abs=0.05)
     flat = df.assign(psnr=np.where(df.variant == "cc", df.psnr - 0.64, df.psnr))  # the CC gain is now 0.16
     assert verdicts(flat, [largest]).verdict[0] != V.REPRODUCED
+    # the CC gain clearly below flow's and barely above the gate's: the contrast against the claim
+    # decides (the audit's "CC gain - flow gain = -0.71 dB"), not the one with the larger p
+    against = runs({(v, "s"): base + g + rng.normal(0, 0.03, 8)
+                    for v, g in {"base": 0.0, "flow": 0.8, "gate": 0.8, "cc": 0.95}.items()})
+    row = verdicts(against, [largest]).iloc[0]
+    assert row.effect == pytest.approx(0.15 - 0.8, abs=0.05) and row.verdict == V.CONTRADICTED
 
 
 def test_existential_decoupling_finds_equal_rgb_with_different_motion():
