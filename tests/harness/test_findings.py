@@ -48,3 +48,11 @@ def test_a_cited_number_must_name_the_generated_value_it_comes_from(tmp_path: Pa
     wrong = check("SD 0.27<!--secret5.psnr.baseline.studio.std--> and 1.5<!--nosuch.key-->", f)
     assert wrong == ["0.27: secret5.psnr.baseline.studio.std is 0.2614", "1.5: unknown key nosuch.key"]
 
+
+def test_the_committed_findings_cite_only_what_the_committed_reports_hold() -> None:
+    import json
+
+    reports = ROOT / "reports"
+    findings = json.loads((reports / "findings.json").read_text())
+    assert findings == collect_findings(reports)  # findings.json is generated, not edited
+    assert check((reports / "FINDINGS.md").read_text(), findings) == []
