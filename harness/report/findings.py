@@ -30,6 +30,11 @@ import pandas as pd
 NUMBER = re.compile(r"(?<![\w.`/#-])([+\-−]?\d+\.\d+)(?:<!--([\w.\-|:\[\]]+)-->)?")
 
 
+def _slug(name: object) -> str:
+    """A key part from a table row's or dataset's name: "hardware (kernel dispatch)" -> hardware_kernel_dispatch."""
+    return re.sub(r"[^\w\-]+", "_", str(name)).strip("_")
+
+
 def _put(out: dict[str, float], key: str, value: object) -> None:
     try:
         v = float(value)
@@ -56,7 +61,7 @@ def _summary(study: str, path: Path, out: dict[str, float]) -> None:
 def _table(study: str, path: Path, kind: str, keys: list[str], out: dict[str, float]) -> None:
     df = pd.read_csv(path)
     for _, r in df.iterrows():
-        name = ".".join(re.sub(r"[^\w\-]+", "_", str(r[k])).strip("_") for k in keys)  # "hardware (kernel dispatch)"
+        name = ".".join(_slug(r[k]) for k in keys)
         for col, value in r.items():
             if col not in keys:
                 _put(out, f"{study}.{kind}.{name}.{col}", value)
@@ -81,7 +86,7 @@ def _paper(out: dict[str, float], studies_dir: Path | None) -> None:
     for name in list_studies(studies_dir):
         for claim in load_study(name, studies_dir).claims:
             for row in claim.paper.rows if claim.paper else ():
-                ds = re.sub(r"[^\w\-]+", "_", row.dataset).strip("_")
+                ds = _slug(row.dataset)
                 for field in ("a", "b", "a_std", "b_std", "run_sd"):
                     _put(out, f"{name}.paper.{claim.id}.{ds}.{field}", getattr(row, field))
                 if row.a is not None and row.b is not None:

@@ -27,7 +27,7 @@ from harness.report.claims import VERDICT_MARK, VERDICT_RULES, effect_text, seso
 from harness.report.findings import write_findings
 from harness.report.fmt import p_text, text
 from harness.report.forest import forest_plot
-from harness.report.results import collect
+from harness.report.results import collect, trainer_fingerprints
 from harness.spec.files import list_studies, load_study
 from harness.spec.metrics import add_differences
 from harness.spec.study import CLAIM_GROUPS
@@ -168,13 +168,10 @@ def committed_study_claims(name: str, root: Path, studies_dir: Path | None = Non
         return None
     page = (folder / "index.md").read_text() if (folder / "index.md").is_file() else ""
     code = m.group(1).strip() if (m := CODE_AT.search(page)) else ""
-    done = df[df.status == "FINISHED"]
-    recorded = done["trainer_fingerprint"] if "trainer_fingerprint" in done else pd.Series([""] * len(done))
-    prints = sorted({str(f) if isinstance(f, str) and f else "unrecorded" for f in recorded})
     study = load_study(name, studies_dir)
     frame = V.evaluate(add_differences(df), study.claims)
     return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),
-                       n_done, code, tuple(prints), source="committed report")
+                       n_done, code, tuple(trainer_fingerprints(df)), source="committed report")
 
 
 def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | None = None,

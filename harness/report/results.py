@@ -60,13 +60,19 @@ class ReportData:
 
     def trainer_fingerprints(self) -> list[str]:
         """The trainer fingerprints recorded by the finished runs ("unrecorded" for older runs)."""
-        done = self.df[self.df.status == "FINISHED"]
-        col = done["trainer_fingerprint"] if "trainer_fingerprint" in done else pd.Series(dtype=str)
-        return sorted({str(f) if isinstance(f, str) and f else "unrecorded" for f in col})
+        return trainer_fingerprints(self.df)
 
     def code_versions(self) -> list[str]:
         """The git commits recorded by the runs that count."""
         return sorted({rec.tags.get("git_sha", "") for rec in self.chosen.values() if rec is not None} - {""})
+
+
+def trainer_fingerprints(df: pd.DataFrame) -> list[str]:
+    """The trainer fingerprints of ``df``'s finished runs; "unrecorded" for runs without one
+    (an empty cell, or a ``runs.csv`` written before the column existed)."""
+    done = df[df.status == "FINISHED"]
+    col = done["trainer_fingerprint"] if "trainer_fingerprint" in done else pd.Series([""] * len(done))
+    return sorted({str(f) if isinstance(f, str) and f else "unrecorded" for f in col})
 
 
 def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]) -> pd.DataFrame:
