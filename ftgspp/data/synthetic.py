@@ -76,11 +76,13 @@ class SynthConfig:
     flame: float = 0.0  # flicker strength of a flame-like ball whose colours change every frame
     exposure_drift: float = 0.0  # 1: auto-exposure log-gain drifts by up to ±0.15, white balance ±0.05
     window: bool = True  # False: the back wall has no window onto the far backdrop
+    detail: float = 1.0  # texture detail (checker, noise, waves, marks); 0 = smooth colour gradients only
 
 
 # fields whose default leaves the scene as it was before they existed: left out of scene.json
 # at their default, so earlier scenes stay byte-identical
-EVENT_DEFAULTS = dict(transients=0, occluder_pass=False, flame=0.0, exposure_drift=0.0, window=True)
+EVENT_DEFAULTS = dict(transients=0, occluder_pass=False, flame=0.0, exposure_drift=0.0, window=True,
+                      detail=1.0)
 
 
 PRESETS: dict[str, dict] = {
@@ -104,6 +106,8 @@ PRESETS: dict[str, dict] = {
     "closed_window": dict(window=False),
     # a flame-like ball: geometry fixed, colours redrawn every frame (DyNeRF's flames and steam)
     "flame": dict(flame=0.6),
+    # "model no more than a scene needs": nothing moves, the textures are smooth colour gradients only
+    "plain": dict(linear_velocity=(0.0, 0.0, 0.0), orbit_omega=0.0, spin=0.0, detail=0.0),
 }
 
 _LINEAR_MID = np.array([-0.55, 0.45, 0.8])  # ball_linear position at mid-clip
@@ -135,6 +139,7 @@ def resolve_config(preset: str = "studio", seed: int = 0, **overrides) -> SynthC
         ("--transients", cfg.transients in (0, 1, 2), "must be 0, 1 or 2"),
         ("--flame", cfg.flame >= 0, "must be >= 0"),
         ("--exposure-drift", cfg.exposure_drift >= 0, "must be >= 0"),
+        ("--detail", 0 <= cfg.detail <= 1, "must be in [0, 1]"),
     ]
     for where, ok, problem in checks:
         if not ok:
@@ -150,8 +155,8 @@ def build_scene(cfg: SynthConfig) -> tuple[SceneContent, list[Camera]]:
     rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 0]))
     ex, ey, ez = np.eye(3)
 
-    def tex(hue: float, scale: float, salt: int) -> Texture:
-        return make_texture(rng, hue, scale, salt)
+    def tex(hue: float, scale: float, salt: int, period_u: float | None = None, vivid: bool = False) -> Texture:
+        return _texture(rng, cfg, hue, scale, salt, period_u, vivid=vivid)
 
     inf = np.inf
     static = [  # room planes end at the back wall (z = 5); the window looks onto the backdrop
@@ -174,15 +179,21 @@ def build_scene(cfg: SynthConfig) -> tuple[SceneContent, list[Camera]]:
     r_lin, r_arc = 0.42, 0.36
     objects = [
         MovingSphere("ball_linear", 1, r_lin, LinearPath(_LINEAR_MID, v_lin, t_mid),
-                     make_texture(rng, 0, 0.35, 9, 2 * np.pi * r_lin, vivid=True)),
+                     tex(0, 0.35, 9, 2 * np.pi * r_lin, vivid=True)),
         MovingSphere("ball_curved", 2, r_arc,
                      ArcPath(_ORBIT_CENTRE, cfg.orbit_radius, omega, -np.pi / 2 - omega * t_mid, ex, _ORBIT_E2),
-                     make_texture(rng, 50, 0.3, 10, 2 * np.pi * r_arc, vivid=True), spin=cfg.spin * cfg.speed),
+                     tex(50, 0.3, 10, 2 * np.pi * r_arc, vivid=True), spin=cfg.spin * cfg.speed),
     ]
     objects += _event_objects(cfg, rng, t_mid)
     cams = make_rig(cfg.n_cameras, cfg.width, cfg.height, cfg.hfov_deg, cfg.arc_deg, cfg.rig_radius,
                     target=np.array([0.0, 0.2, 1.4]), eye_height=-0.3)
     return SceneContent(static, objects), cams
+
+
+def _texture(rng: np.random.Generator, cfg: SynthConfig, hue: float, scale: float, salt: int,
+             period_u: float | None = None, vivid: bool = False) -> Texture:
+    """``make_texture`` at ``cfg.detail`` (the random draws do not depend on it)."""
+    return replace(make_texture(rng, hue, scale, salt, period_u, vivid), detail=cfg.detail)
 
 
 def _event_objects(cfg: SynthConfig, rng: np.random.Generator, t_mid: float) -> list[MovingSphere]:
@@ -195,17 +206,17 @@ def _event_objects(cfg: SynthConfig, rng: np.random.Generator, t_mid: float) -> 
     spots = [(np.array([-1.55, 0.62, 1.9]), 0.38, (0.2, 0.6)), (np.array([0.35, 0.7, 3.7]), 0.3, (0.45, 0.85))]
     for k, (centre, r, (a, b)) in enumerate(spots[: cfg.transients]):
         out.append(MovingSphere(f"transient_{k}", 3 + k, r, LinearPath(centre, still, t_mid),
-                                make_texture(rng, 200 + 80 * k, 0.3, 11 + k, 2 * np.pi * r, vivid=True),
+                                _texture(rng, cfg, 200 + 80 * k, 0.3, 11 + k, 2 * np.pi * r, vivid=True),
                                 visible=(a * duration, b * duration), role="transient"))
     if cfg.occluder_pass:  # crosses x = 0.2 .. 2.8 at z = 4.1, behind the crate (x 1.1 .. 1.9, z 2.6 .. 3.4)
         r = 0.28
         v = np.array([2.6 * cfg.speed / max((cfg.n_frames - 1) / cfg.fps, 1e-6), 0.0, 0.0])  # one crossing
         out.append(MovingSphere("ball_occluded", 5, r, LinearPath(np.array([1.5, 0.62, 4.1]), v, t_mid, 1.3),
-                                make_texture(rng, 160, 0.3, 13, 2 * np.pi * r, vivid=True)))
+                                _texture(rng, cfg, 160, 0.3, 13, 2 * np.pi * r, vivid=True)))
     if cfg.flame > 0:
         r = 0.4
         out.append(MovingSphere("flame", 6, r, LinearPath(np.array([-0.9, 0.55, 3.9]), still, t_mid),
-                                make_texture(rng, 20, 0.3, 14, 2 * np.pi * r, vivid=True), flicker=cfg.flame,
+                                _texture(rng, cfg, 20, 0.3, 14, 2 * np.pi * r, vivid=True), flicker=cfg.flame,
                                 role="flame"))
     return out
 
@@ -500,6 +511,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--flame", type=float, help="flicker strength of a flame-like ball (0 = none)")
     p.add_argument("--exposure-drift", type=float, dest="exposure_drift",
                    help="auto-exposure drift strength (1 = log-gain ±0.15, white balance ±0.05)")
+    p.add_argument("--detail", type=float, help="texture detail in [0, 1] (1 = default; 0 = smooth gradients only)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier synthetic scene in --out")
     return p
 
@@ -508,7 +520,7 @@ def main(argv: list[str] | None = None) -> int:
     """``ftgspp synth`` entry point; returns the exit status."""
     args = _parser().parse_args(argv)
     knobs = ("n_cameras", "n_frames", "width", "height", "hfov_deg", "color_shift", "noise", "speed", "codec", "fps",
-             "transients", "flame", "exposure_drift")
+             "transients", "flame", "exposure_drift", "detail")
     overrides = {k: getattr(args, k) for k in knobs if getattr(args, k) is not None}
     try:
         generate(args.out, layout=args.layout, preset=args.preset, seed=args.seed,

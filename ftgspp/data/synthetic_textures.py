@@ -57,6 +57,7 @@ class Texture:
     salt: int
     period_u: float | None = None  # u wraps with this period (sphere longitude)
     mark_fraction: float = 0.7  # share of grid cells holding a mark
+    detail: float = 1.0  # scales the checker, noise, waves and marks; 0 leaves the smooth gradient only
 
     def albedo(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Albedo for surface points ``u, v [N]`` -> ``[N, 3]`` in (0, 1)."""
@@ -64,13 +65,13 @@ class Texture:
                                / self.gradient_period + self.gradient_phase)
         col = self.color_a + (self.color_b - self.color_a) * g[:, None]
         s = np.sin(np.pi * u / self.checker_period) * np.sin(np.pi * v / self.checker_period)
-        chk = self.checker_strength * (0.5 + 0.5 * np.tanh(6.0 * s))
+        chk = self.checker_strength * self.detail * (0.5 + 0.5 * np.tanh(6.0 * s))
         col = col * (1 - chk[:, None]) + self.accent * chk[:, None]
-        lum = 1.0 + 0.4 * self._value_noise(u, v, 0.4 * self.mark_cell)
+        lum = 1.0 + 0.4 * self.detail * self._value_noise(u, v, 0.4 * self.mark_cell)
         for fu, fv, ph, amp in self.waves:
-            lum += amp * np.cos(2 * np.pi * (fu * u + fv * v) + ph)
+            lum += amp * self.detail * np.cos(2 * np.pi * (fu * u + fv * v) + ph)
         w, gain = self._marks(u, v)
-        col = col * (lum * (1 + (gain - 1) * w))[:, None]
+        col = col * (lum * (1 + (gain - 1) * w * self.detail))[:, None]
         return np.clip(col, 0.03, 0.95)
 
     def _cells(self, u: np.ndarray, v: np.ndarray, cell: float):

@@ -32,7 +32,8 @@ def transient(tmp_path_factory) -> Path:
 
 
 def test_every_preset_is_listed_and_resolves():
-    for name in ("transient", "occlusion", "exposure_drift", "long_slow", "short_fast", "closed_window", "flame"):
+    for name in ("transient", "occlusion", "exposure_drift", "long_slow", "short_fast", "closed_window", "flame",
+                 "plain"):
         assert name in PRESETS
         resolve_config(name)
     assert resolve_config("long_slow").n_frames / resolve_config("long_slow").fps >= 3.0  # a 3-10 s clip
@@ -153,3 +154,20 @@ def test_cli_options_and_bad_values(tmp_path, capsys):
     assert main(["--out", str(tmp_path / "b"), "--transients", "3"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--transients" in err[0]
+
+
+def test_plain_is_the_static_room_with_little_texture_detail(tmp_path, capsys):
+    kw = dict(n_frames=3, noise=0.0, **SMALL)
+    static, plain = (generate(tmp_path / n, preset=n, **kw) for n in ("static", "plain"))
+    for name in ("depth", "objects"):  # the same geometry
+        assert np.array_equal(np.load(static / "gt" / name / "cam01.npy"), np.load(plain / "gt" / name / "cam01.npy"))
+    a, b = frames(static, "cam01"), frames(plain, "cam01")
+    assert np.abs(np.diff(b, axis=0)).max() < 1e-9  # nothing moves
+
+    def detail(img: np.ndarray) -> float:  # high-frequency energy: mean |Laplacian| of the luminance
+        return float(np.abs(cv2.Laplacian(img.mean(axis=-1), cv2.CV_64F)).mean())
+
+    assert detail(b[0]) < 0.5 * detail(a[0])
+    assert main(["--out", str(tmp_path / "bad"), "--preset", "plain", "--detail", "1.5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--detail" in err[0]
