@@ -89,3 +89,43 @@ def test_the_process_that_compiles_the_kernels_runs_the_same_code_as_one_that_lo
     assert (compiled["cache_hits"], loaded["cache_hits"]) == (0, 2)  # compiled, then loaded
     assert compiled["standalone"] == {"_forward_tile": 0, "_backward_tile": 0}
     assert compiled["sha"] == loaded["sha"]
+
+
+@pytest.mark.parametrize("rb", [8, 16])
+def test_column_blocks_hold_every_pixel_a_gaussian_can_reach(rb: int) -> None:
+    """The blocks of ``rb`` columns a Gaussian visits (``RB`` is 16 on AVX-512, 8 on AVX2) hold
+    every pixel of its tile where alpha >= 1/255, computed in float64 from the conic; and they
+    skip blocks (the point of them)."""
+    from ftgspp.render import cpu_kernels as k
+
+    s = make_scene(3)
+    m, c, o = (s[n].detach().numpy() for n in ("means2d", "conics", "opacities"))
+    b = k.bin_gaussians(m, c, o, s["radii"].numpy().astype(np.int64), s["width"], s["height"])
+    tiles_x = (s["width"] + k.TS - 1) // k.TS
+    visited = reached = 0
+    for t in range(len(b.offsets) - 1):
+        x0, y0 = (t % tiles_x) * k.TS, (t // tiles_x) * k.TS
+        xs, ys = np.meshgrid(np.arange(x0, x0 + k.TS), np.arange(y0, y0 + k.TS))
+        for g in b.pair_gauss[b.offsets[t]: b.offsets[t + 1]]:
+            dx, dy = xs - np.float64(m[g, 0]), ys - np.float64(m[g, 1])
+            a, bb, cc = np.float64(c[g])
+            alpha = o[g] * np.exp(-0.5 * (a * dx * dx + cc * dy * dy) - bb * dx * dy)
+            cols = np.unique(xs[(alpha >= ALPHA_MIN) & (ys < s["height"])] - x0)
+            b0, b1 = k._column_blocks(b.span, g, x0, rb)
+            assert np.all((cols // rb >= b0) & (cols // rb < b1)), (t, g, cols, b0, b1)
+            visited += max(b1 - b0, 0)
+            reached += len(np.unique(cols // rb))
+    assert reached <= visited < (len(b.pair_gauss) * k.TS // rb)
+
+
+def test_vector_lanes_follow_the_compile_target(monkeypatch: pytest.MonkeyPatch) -> None:
+    from ftgspp.runtime.jit import vector_lanes
+
+    for name, features, lanes in (("haswell", "", 8), ("znver3", None, 8), ("skylake-avx512", "", 16),
+                                  ("znver4", None, 16), ("host", "+avx2,-avx512f", 8), ("host", "+avx512f,+avx2", 16)):
+        monkeypatch.setenv("NUMBA_CPU_NAME", name)
+        if features is None:
+            monkeypatch.delenv("NUMBA_CPU_FEATURES", raising=False)
+        else:
+            monkeypatch.setenv("NUMBA_CPU_FEATURES", features)
+        assert vector_lanes() == lanes, (name, features)
