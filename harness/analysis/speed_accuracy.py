@@ -30,7 +30,8 @@ COLUMNS = ["scene", "scene_label", "variant", "budget", "iterations", "n", "n_fa
            "train_seconds", "n_gaussians", "pareto_time", "pareto_gaussians"]
 CHOSEN_CELL = ["scene", "scene_label", "variant", "budget", "iterations", "n", "mean", "ci95",
                "train_seconds", "n_gaussians"]  # copied from the chosen variant's row
-CHOSEN_COLUMNS = [*CHOSEN_CELL, "best_variant", "best_mean", "best_ci95", "gap", "gap_ci95", "gap_ci_includes_tol"]
+CHOSEN_COLUMNS = [*CHOSEN_CELL, "best_variant", "best_mean", "best_ci95", "gap", "gap_ci95", "gap_ci_includes_tol",
+                  "largest_budget"]
 
 
 def per_scene(df: pd.DataFrame, metric: str = "psnr") -> pd.DataFrame:
@@ -85,8 +86,9 @@ def smallest_per_scene(sa: pd.DataFrame, df: pd.DataFrame, tol_db: float = 0.1,
     Ties go to fewer iterations, then less time (``aggregate.smallest_within``). ``gap`` is
     best mean - chosen mean (>= 0), ``gap_ci95`` its Welch half-width from the runs in ``df``
     (0 when the chosen variant is the best), ``gap_ci_includes_tol`` whether that interval
-    reaches ``tol_db`` (True: "within tol_db" is not settled; NA: no interval). Scenes without
-    a finished run have no row.
+    reaches ``tol_db`` (True: "within tol_db" is not settled; NA: no interval),
+    ``largest_budget`` the scene's largest budget tried (chosen there: no saturation shown).
+    Scenes without a finished run have no row.
     """
     rows = []
     for scene, cells in sa.groupby("scene", sort=False):
@@ -100,7 +102,8 @@ def smallest_per_scene(sa: pd.DataFrame, df: pd.DataFrame, tol_db: float = 0.1,
         rows.append({**chosen[CHOSEN_CELL].to_dict(),
                      "best_variant": best.variant, "best_mean": best["mean"], "best_ci95": best.ci95,
                      "gap": gap, "gap_ci95": half,
-                     "gap_ci_includes_tol": pd.NA if math.isnan(half) else gap - half <= tol_db <= gap + half})
+                     "gap_ci_includes_tol": pd.NA if math.isnan(half) else gap - half <= tol_db <= gap + half,
+                     "largest_budget": cells["budget"].max()})
     out = pd.DataFrame(rows, columns=CHOSEN_COLUMNS)
     out["gap_ci_includes_tol"] = out["gap_ci_includes_tol"].astype("boolean")
     return out

@@ -92,6 +92,8 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
         lines += [speed_accuracy_report.report_markdown(df), "",
                   "Per scene and variant: [speed_accuracy.csv](speed_accuracy.csv); the chosen budgets:"
                   " [speed_accuracy_smallest.csv](speed_accuracy_smallest.csv).", ""]
+        if "psnr_cc" in df and df["psnr_cc"].notna().any():
+            lines += [speed_accuracy_report.colour_aligned_markdown(df), ""]
     elif "speed_accuracy" in study.plots:
         sa = aggregate.speed_accuracy(df)
         chosen = aggregate.smallest_within(sa)

@@ -150,10 +150,13 @@ def test_markdown_table_and_scene_comparisons_come_from_the_data() -> None:
     chosen = smallest_per_scene(per_scene(df), df)
     assert pair_sentences(chosen) == [
         "Static and Studio both need 500 Gaussians; not settled for Static (the gap's CI reaches the tolerance).",
-        "Static needs 500 Gaussians, Fast motion 5000 (10× as many); not settled for Static"
-        " (the gap's CI reaches the tolerance).",
-        "Studio needs 500 Gaussians, Fast motion 5000 (10× as many).",
+        # fast motion is best at its largest budget: the grid shows no saturation there
+        "Static needs 500 Gaussians; Fast motion still gains at 5000, its largest budget tried; not settled for"
+        " Static (the gap's CI reaches the tolerance).",
+        "Studio needs 500 Gaussians; Fast motion still gains at 5000, its largest budget tried.",
     ]
+    fast = next(row for row in markdown(chosen).splitlines() if row.startswith("| Fast motion |"))
+    assert fast.endswith("| — (the largest budget tried: no saturation within the grid) |")
     table = markdown(chosen).splitlines()
     assert len([row for row in table if row.startswith("| ")]) == 1 + 3  # header + one row per scene
     static = next(row for row in table if row.startswith("| Static |"))
@@ -209,4 +212,37 @@ def test_multi_scene_report_writes_the_per_scene_csv_figure_and_section(tmp_path
     assert smallest.loc["fast", "variant"] == "b5000_i1000"
     index = (tmp_path / "index.md").read_text()
     assert "### Smallest budget within 0.1 dB of the best, per scene" in index
-    assert "- Studio needs 500 Gaussians, Fast motion 5000 (10× as many)." in index
+    assert "- Studio needs 500 Gaussians; Fast motion still gains at 5000, its largest budget tried." in index
+
+
+def test_the_page_repeats_the_search_on_colour_aligned_psnr(tmp_path: Path) -> None:
+    """Raw PSNR can flatten on an error no budget removes (the held-out camera's colour) while
+    colour-aligned PSNR still gains: planted so, the two sections choose different budgets."""
+    from harness.report.results import ReportData
+    from harness.report.sections import TablesSection
+    from harness.report.speed_accuracy import colour_aligned_markdown
+    from harness.report.writer import study_page
+    from harness.spec.runs import Selection
+
+    df = _frame()
+    df["psnr_cc"] = df["psnr"] + df["budget"] / 1000  # every doubling still gains on colour-aligned PSNR
+    section = colour_aligned_markdown(df)
+    assert section.startswith("### Smallest budget within 0.1 dB of the best, per scene, on colour-aligned PSNR")
+    row = next(r for r in section.splitlines() if r.startswith("| Static |"))
+    assert "5000 (`b5000_i1000`)" in row  # raw PSNR chose 500
+    data = ReportData(_study(), Selection(), [], df, "sqlite:///mlflow.db", "ftgspp/sa3", [], None)
+    page = study_page(data, tmp_path, TablesSection([], {}, "", ""), [], [], [])
+    assert page.index("per scene\n") < page.index("per scene, on colour-aligned PSNR")
+    assert "per scene, on colour-aligned PSNR" not in study_page(
+        ReportData(_study(), Selection(), [], _frame(), "sqlite:///mlflow.db", "ftgspp/sa3", [], None),
+        tmp_path, TablesSection([], {}, "", ""), [], [], [])
+
+
+def test_scenes_best_at_their_largest_budget_are_reported_as_not_saturating() -> None:
+    psnr = {k: v for k, v in PSNR.items() if k[0] != "static"}
+    psnr[("studio", "b5000_i1000")] = [29.0, 29.1]  # now best, at studio's largest budget, as on fast
+    df = _frame(psnr)
+    chosen = smallest_per_scene(per_scene(df), df)
+    assert list(chosen.largest_budget) == [5000.0, 5000.0]
+    assert pair_sentences(chosen) == [
+        "Neither Studio nor Fast motion saturates within the grid (each is best at its largest budget)."]
