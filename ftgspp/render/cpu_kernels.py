@@ -363,6 +363,16 @@ def _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot):
     return w, stop, use
 
 
+@njit(inline="always", **JIT)
+def _forward_pixel_rgb(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot, c0, c1, c2):
+    """``_forward_pixel`` plus the pixel's RGB accumulation; returns (stopped, contributed)."""
+    w, stop, use = _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot)
+    st[_F_ACC0 + p] += w * c0 if use else F0
+    st[_F_ACC1 + p] += w * c1 if use else F0
+    st[_F_ACC2 + p] += w * c2 if use else F0
+    return stop, use
+
+
 @njit(**_TILE_JIT)
 def _forward_tile(
     tile, means2d, conics, colors, opacities, depths, depth_keys, background, offsets, pair_gauss,
@@ -438,10 +448,7 @@ def _forward_tile(
             c2 = colors[g, 2]
             if RB == TS:  # whole rows: one loop over them all (what LLVM vectorises best at 16 lanes)
                 for p in range(lo, hi):  # branch-free: vectorised
-                    w, stop, use = _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot)
-                    st[_F_ACC0 + p] += w * c0 if use else F0
-                    st[_F_ACC1 + p] += w * c1 if use else F0
-                    st[_F_ACC2 + p] += w * c2 if use else F0
+                    stop, use = _forward_pixel_rgb(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot, c0, c1, c2)
                     stops |= stop
                     uses |= use
             else:
@@ -449,11 +456,8 @@ def _forward_tile(
                     for b in range(b0, b1):
                         base = q + np.uint64(b * RB)
                         for j in range(_RB):  # branch-free: vectorised
-                            p = base + j
-                            w, stop, use = _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot)
-                            st[_F_ACC0 + p] += w * c0 if use else F0
-                            st[_F_ACC1 + p] += w * c1 if use else F0
-                            st[_F_ACC2 + p] += w * c2 if use else F0
+                            stop, use = _forward_pixel_rgb(st, base + j, mx, my, nh_a, nh_c, cb, op, z, f_slot,
+                                                           c0, c1, c2)
                             stops |= stop
                             uses |= use
         else:
