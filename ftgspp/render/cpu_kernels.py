@@ -702,8 +702,8 @@ def _backward_tile(
             c0 = colors[g, 0]
             c1 = colors[g, 1]
             c2 = colors[g, 2]
-            # one block at a time over all rows, each at a constant column offset: LLVM keeps the
-            # block's column sums in vector registers across the rows (10 on AVX2, not 20)
+            # one block at a time over all rows, each at a constant column offset, so a loop
+            # carries 10 vectors of column sums (one block's), not 20 (the RB = 8 case)
             if b0 <= 0 < b1:
                 _backward_block3(st, lanes, lo, hi, np.uint64(0), z, c0, c1, c2, mx, my, nh_a, nh_c, cb, op, f_slot)
             if TS // RB > 1 and b0 <= 1 < b1:
