@@ -15,7 +15,7 @@ lists to the chunk's longest list and evaluates every (tile, Gaussian, pixel) tr
 dense [tiles, K, 256] tensor. Skipped Gaussians get alpha 0, transmittance is a cumulative
 product of (1 - alpha), and early termination is a mask on it (T never increases, so the
 Gaussians added are exactly those whose T_next > 1e-4). The masks carry no gradient, so
-autograd gives the exact gradient of this piecewise-smooth function (zero through the 0.99
+autograd gives the exact gradient of this piecewise-smooth function (zero through the 0.999
 clamp where it is active, nothing through the selections).
 
     image, alpha, depth = rasterize(means2d, conics, colors, opacities, depths, radii, W, H)

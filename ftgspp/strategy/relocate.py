@@ -42,7 +42,7 @@ class Relocator:
     @torch.no_grad()
     def accumulate(self, state: dict[str, torch.Tensor], means2d_grad: torch.Tensor, radii: torch.Tensor) -> None:
         """Add ‖∇ means2d‖ of the visible Gaussians (radii [N, 2] > 0) after a backward pass."""
-        visible = (radii > 0).all(dim=-1) if radii.dim() == 2 else radii > 0
+        visible = (radii > 0).all(dim=-1)
         state["grad2d"][visible] += means2d_grad[visible].norm(dim=-1).to(state["grad2d"].device)
         state["count"][visible] += 1
 
