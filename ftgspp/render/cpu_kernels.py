@@ -696,7 +696,7 @@ def _backward_tile(
         z = depths[g]
         f_slot = np.float32(i)
         j0 = b0 * RB  # the columns visited; the others would only add zeros
-        j1 = max(b1, b0) * RB
+        j1 = b1 * RB
         lanes[:] = F0
         if n_dim == 3:
             c0 = colors[g, 0]

@@ -28,9 +28,9 @@ def _gap(row: pd.Series) -> str:
 
 
 def _settled(row: pd.Series, tol_db: float) -> str:
+    if _unsaturated(row):
+        return "— (the largest budget tried: no saturation within the grid)"
     if row.variant == row.best_variant:
-        if row.budget >= row.largest_budget:
-            return "— (the largest budget tried: no saturation within the grid)"
         return "— (the best itself)"
     if pd.isna(row.gap_ci_includes_tol):
         return "— (fewer than 2 runs or no spread)"
@@ -39,7 +39,7 @@ def _settled(row: pd.Series, tol_db: float) -> str:
 
 def _unsaturated(row: pd.Series) -> bool:
     """The chosen budget is the best and the largest tried: the grid shows no saturation."""
-    return bool(row.variant == row.best_variant and row.budget >= row.get("largest_budget", float("inf")))
+    return bool(row.variant == row.best_variant and row.budget >= row.largest_budget)
 
 
 def _unsettled(row: pd.Series) -> bool:
@@ -96,11 +96,12 @@ def markdown(chosen: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr") ->
     return "\n".join(lines)
 
 
-def report_markdown(df: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr") -> str:
-    """The report's section: heading, how to read it, the table and the scene comparisons."""
+def report_markdown(df: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr", on: str = "") -> str:
+    """The report's section: heading (``on`` names the metric in it), how to read it, the table
+    and the scene comparisons."""
     sa = per_scene(df, metric)
     chosen = smallest_per_scene(sa, df, tol_db, metric)
-    lines = [f"### Smallest budget within {tol_db:g} dB of the best, per scene", "",
+    lines = [f"### Smallest budget within {tol_db:g} dB of the best, per scene{on}", "",
              f"Per scene, the variant with the smallest Gaussian budget (then fewest iterations, then least"
              f" time) whose mean {label(metric)} is within {tol_db:g} dB of that scene's best."
              " Gap = best mean − chosen mean, 95% CI from a Welch t-interval over the two variants' runs;"
@@ -115,7 +116,7 @@ def report_markdown(df: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr")
 def colour_aligned_markdown(df: pd.DataFrame, tol_db: float = 0.1) -> str:
     """The same search on colour-aligned PSNR, and why it is shown beside the raw one."""
     return "\n".join([
-        report_markdown(df, tol_db, "psnr_cc").replace("per scene", "per scene, on colour-aligned PSNR", 1), "",
+        report_markdown(df, tol_db, "psnr_cc", on=", on colour-aligned PSNR"), "",
         "The held-out camera's own colour transform is unknown to the model (colour correction learns"
         " the training cameras'), so raw PSNR carries an error that no budget removes and flattens where"
         " that error dominates. Colour-aligned PSNR (`psnr_cc`: a least-squares affine colour map of the"

@@ -129,3 +129,12 @@ def test_vector_lanes_follow_the_compile_target(monkeypatch: pytest.MonkeyPatch)
         else:
             monkeypatch.setenv("NUMBA_CPU_FEATURES", features)
         assert vector_lanes() == lanes, (name, features)
+
+
+def test_the_bench_targets_and_the_row_width_agree_on_avx512() -> None:
+    """``ftgspp bench --target`` labels a CPU AVX-512 exactly when the kernels give it 16 lanes."""
+    from ftgspp.bench.isa import TARGET_ISA
+    from ftgspp.runtime.jit import AVX512_CPUS
+
+    assert {n for n, isa in TARGET_ISA.items() if isa == "avx512f"} <= AVX512_CPUS
+    assert not {n for n, isa in TARGET_ISA.items() if isa != "avx512f"} & AVX512_CPUS
