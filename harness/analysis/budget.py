@@ -7,6 +7,9 @@ pure functions of the runs' PSNRs per budget:
 - ``gain(low, high)``: mean PSNR(high) − mean PSNR(low) with its 95% Welch interval;
 - ``sufficient(candidate, best, threshold)``: the candidate is within ``threshold`` dB of the
   best budget tried (point estimate; the interval says whether that is settled).
+
+The PSNR is the search's ``metric``: raw held-out PSNR (``psnr``) or the colour-aligned one
+(``psnr_cc``), which leaves out the held-out camera's colour that no model budget can learn.
 """
 
 from __future__ import annotations
@@ -51,13 +54,17 @@ def midpoint(low: int, high: int, step: int = 100) -> int:
     return int(round((low + high) / 2 / step) * step)
 
 
+METRICS = {"psnr": "held-out PSNR", "psnr_cc": "colour-aligned held-out PSNR"}  # what a search may judge
+
+
 @dataclass
 class BudgetSearch:
     """What the search tried and found."""
 
     scene: str
     threshold: float
-    psnr: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed PSNR
+    metric: str = "psnr"  # what the search judges: psnr or psnr_cc (METRICS)
+    psnr: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed value of ``metric``
     seconds: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed train seconds
     steps: list[str] = field(default_factory=list)  # one line per decision
     chosen: int | None = None

@@ -10,6 +10,7 @@ budget, its gap to the largest budget tried with a 95% interval, and the trainin
 
     study budget --preset static              # a built-in synthetic scene
     study budget --data /data/my_scene --max 64000 model=ftgspp
+    study budget --preset plain --metric psnr_cc   # judge the colour-aligned PSNR
 """
 
 from __future__ import annotations
@@ -28,13 +29,13 @@ from harness.spec.study import SYNTH_ROOT, ProfileSpec, StudyScene, StudySpec, T
 from harness.tracking.records import load_runs, open_store, tracking_target
 
 
-def study_for(name: str, scene: StudyScene, budgets: list[int], seeds: int, overrides: list[str], jobs: int
-              ) -> StudySpec:
+def study_for(name: str, scene: StudyScene, budgets: list[int], seeds: int, overrides: list[str], jobs: int,
+              metric: str = "psnr") -> StudySpec:
     """A study with one variant per budget tried, on one scene (the quick profile's settings)."""
     variants = {f"b{b}": (f"budget={b}",) for b in sorted(budgets)}
     first = next(iter(variants))
     prof = ProfileSpec("quick", seeds, ("profile=quick", *overrides), (scene,), variants, baseline=first, jobs=jobs)
-    return StudySpec(name, f"The smallest Gaussian budget scene {scene.name} needs.", first, 0, ("psnr",),
+    return StudySpec(name, f"The smallest Gaussian budget scene {scene.name} needs.", first, 0, (metric,),
                      TableSpec(), (), (), {"quick": prof})
 
 
@@ -52,17 +53,20 @@ def data_scene(path: str) -> StudyScene:
 
 
 def search(scene: StudyScene, *, start: int = 500, max_budget: int = 64_000, threshold: float = 0.1,
-           seeds: int = 3, overrides: list[str] | None = None, jobs: int = 1,
+           seeds: int = 3, overrides: list[str] | None = None, jobs: int = 1, metric: str = "psnr",
            echo: Callable[[str], None] = print, **run_kw: object) -> BudgetSearch:
-    """Double, then bisect (module docstring); every budget is trained through ``run_study``."""
+    """Double, then bisect (module docstring); every budget is trained through ``run_study``.
+    ``metric``: the PSNR judged (``analysis.budget.METRICS``); the runs are the same for both."""
+    if metric not in B.METRICS:
+        raise InputError("--metric", f"unknown '{metric}' (known: {', '.join(B.METRICS)})")
     name = f"budget_{scene.name}"
-    found = BudgetSearch(scene.name, threshold)
+    found = BudgetSearch(scene.name, threshold, metric)
     overrides = list(overrides or [])
 
     def measure(budget: int) -> np.ndarray:
         if budget not in found.psnr:
             budgets = sorted({*found.psnr, budget})
-            spec = study_for(name, scene, budgets, seeds, overrides, jobs)
+            spec = study_for(name, scene, budgets, seeds, overrides, jobs, metric)
             sel = Selection(variants=[f"b{budget}"])
             run_study(name, sel, jobs=jobs, echo=echo, study=spec, **run_kw)
             _read(found, spec, sel, budget)
@@ -106,7 +110,7 @@ def _read(found: BudgetSearch, spec: StudySpec, sel: Selection, budget: int) -> 
     for rec in load_runs(open_store(uri), exp, spec.name):
         if rec.key in keys and rec.status == "FINISHED":
             latest[rec.key] = rec
-    found.psnr[budget] = [r.metrics["psnr"] for r in latest.values() if "psnr" in r.metrics]
+    found.psnr[budget] = [r.metrics[found.metric] for r in latest.values() if found.metric in r.metrics]
     found.seconds[budget] = [r.metrics.get("train_seconds", np.nan) for r in latest.values()]
     if len(found.psnr[budget]) == 0:
         raise InputError(f"budget {budget}", f"no run finished (their errors: MLflow experiment ftgspp/{spec.name})")

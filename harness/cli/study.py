@@ -6,7 +6,7 @@
                    [key=value overrides ...]
     study status NAME [same selection options]
     study report NAME [same selection options] [--out DIR]   (default outputs/reports/NAME)
-    study budget --preset P | --data DIR [--start N --max N --threshold DB --seeds N] [overrides]
+    study budget --preset P | --data DIR [--start N --max N --threshold DB --seeds N --metric M] [overrides]
     study check NAME [--reference runs.csv] [--strict]   the runs against a committed report, bit for bit
     study index [--out DIR]          OUT/index.md: every study's claims with verdicts
 
@@ -98,6 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
     budget.add_argument("--max", type=int, default=64_000, help="largest budget to try (default 64000)")
     budget.add_argument("--threshold", type=float, default=0.1, help="dB a doubling must gain (default 0.1)")
     budget.add_argument("--seeds", type=int, default=3, help="runs per budget (default 3)")
+    budget.add_argument("--metric", choices=["psnr", "psnr_cc"], default="psnr",
+                        help="what a doubling must gain: held-out PSNR (psnr, default) or colour-aligned (psnr_cc),"
+                             " which leaves out the held-out camera's colour no budget can learn")
     budget.add_argument("--jobs", type=int, default=None, help="parallel runs (default: one per core, at most 2)")
     budget.add_argument("--out", type=Path, default=USER_REPORTS / "budget", help="where the result goes")
     budget.add_argument("overrides", nargs="*", help="Hydra overrides for every run, e.g. model=ftgspp")
@@ -186,7 +189,7 @@ def cmd_budget(args: argparse.Namespace) -> int:
     scene = synthetic_scene(args.preset) if args.preset else data_scene(args.data)
     jobs = args.jobs or max(1, min(2, os.cpu_count() or 1))
     found = search(scene, start=args.start, max_budget=args.max, threshold=args.threshold, seeds=args.seeds,
-                   overrides=list(args.overrides), jobs=jobs)
+                   overrides=list(args.overrides), jobs=jobs, metric=args.metric)
     path = write(found, args.out / found.scene)
     print(path.read_text().split("\n**")[-1].strip() if found.saturated else "no saturation: see " + str(path))
     print(f"report: {path}")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from harness.analysis.budget import BudgetSearch
+from harness.analysis.budget import METRICS, BudgetSearch
 from harness.report.plots import save_figure
 
 
@@ -20,12 +20,17 @@ def frame(found: BudgetSearch) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _label(found: BudgetSearch) -> str:
+    return "PSNR colour-aligned" if found.metric == "psnr_cc" else "PSNR"
+
+
 def markdown(found: BudgetSearch) -> str:
     table = frame(found)
     lines = [f"# The smallest budget scene `{found.scene}` needs", "",
              f"Doubling from {table.budget.min()} Gaussians while doubling gains at least {found.threshold:g} dB of"
-             " held-out PSNR, then bisecting; each budget judged against the largest tried.", "",
-             "| Gaussians | runs | PSNR (dB) | train time (s) |", "|---:|---:|---:|---:|"]
+             f" {METRICS[found.metric]} (`{found.metric}`), then bisecting; each budget judged against the largest"
+             " tried.", "",
+             f"| Gaussians | runs | {_label(found)} (dB) | train time (s) |", "|---:|---:|---:|---:|"]
     for r in table.itertuples():
         mark = " **(chosen)**" if r.budget == found.chosen else ""
         lines.append(f"| {r.budget}{mark} | {r.n} | {r.psnr_mean:.2f} ± {r.psnr_std:.2f} | {r.train_seconds:.1f} |")
@@ -57,8 +62,8 @@ def write(found: BudgetSearch, out: Path) -> Path:
         ax.legend(fontsize=8)
     ax.set_xscale("log", base=2)
     ax.set_xlabel("Gaussians")
-    ax.set_ylabel("held-out PSNR (dB)")
-    ax.set_title(f"{found.scene}: PSNR per budget (mean ± std over seeds)", fontsize=10)
+    ax.set_ylabel(f"{METRICS[found.metric]} (dB)")
+    ax.set_title(f"{found.scene}: {_label(found)} per budget (mean ± std over seeds)", fontsize=10)
     ax.grid(alpha=0.3)
     save_figure(fig, out / "budget.png")
     (out / "budget.md").write_text(markdown(found))

@@ -7,6 +7,9 @@ from pathlib import Path
 
 from fakes import fake_generate, fake_train
 
+import pytest
+
+from ftgspp.errors import InputError
 from harness.analysis.budget import gain, midpoint, sufficient
 from harness.cli.budget import search, synthetic_scene
 from harness.report.budget import write
@@ -16,6 +19,8 @@ def saturating(cfg, out_dir, tracker):
     """PSNR rises with the budget and saturates: 30 - 3 exp(-budget / 1500), plus seed noise."""
     result = fake_train(cfg, out_dir, tracker)
     result.metrics["psnr"] = 30.0 - 3.0 * math.exp(-cfg.budget / 1500) + 0.01 * (cfg.seed - 1)
+    # colour-aligned: the held-out camera's colour error gone, the model keeps gaining longer
+    result.metrics["psnr_cc"] = 34.0 - 6.0 * math.exp(-cfg.budget / 6000) + 0.01 * (cfg.seed - 1)
     result.metrics["train_seconds"] = 1.0 + cfg.budget / 1000
     return result
 
@@ -50,3 +55,17 @@ def test_no_saturation_is_said_plainly(workdir: Path) -> None:
     assert not found.saturated and found.chosen == 2000
     md = write(found, Path("outputs/reports/budget") / found.scene).read_text()
     assert "No saturation" in md
+
+
+def test_the_colour_aligned_psnr_is_searched_on_its_own_values(workdir: Path) -> None:
+    raw = search(synthetic_scene("plain"), start=500, max_budget=256_000, threshold=0.1, seeds=2,
+                 train_fn=saturating, generate=fake_generate, echo=lambda s: None)
+    cc = search(synthetic_scene("plain"), start=500, max_budget=256_000, threshold=0.1, seeds=2,
+                train_fn=saturating, generate=fake_generate, echo=lambda s: None, metric="psnr_cc")
+    # 6 exp(-b/6000) - 6 exp(-2b/6000) < 0.1 needs b > ~24,500; the raw curve saturates near 6,000
+    assert raw.chosen <= 8000 < 16_000 < cc.chosen <= 32_000 and cc.saturated
+    assert 6.0 * math.exp(-cc.chosen / 6000) - 6.0 * math.exp(-cc.best / 6000) < 0.1
+    md = write(cc, Path("outputs/reports/budget_cc") / cc.scene).read_text()
+    assert "colour-aligned held-out PSNR (`psnr_cc`)" in md and "| PSNR colour-aligned (dB) |" in md
+    with pytest.raises(InputError, match="--metric"):
+        search(synthetic_scene("plain"), metric="lpips_alex", train_fn=saturating, generate=fake_generate)
