@@ -5,9 +5,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from fakes import fake_generate, fake_train
-
 import pytest
+from fakes import fake_generate, fake_train
 
 from ftgspp.errors import InputError
 from harness.analysis.budget import gain, midpoint, sufficient
