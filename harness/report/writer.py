@@ -59,8 +59,7 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
     if study.notes:
         lines += [f"**Notes.** {study.notes}", ""]
     lines += [
-        f"Runs: {c['n_runs']} planned = {df.variant.nunique()} variants × {df.scene.nunique()} scenes ×"
-        f" {df.seed.nunique()} seeds; {c['n_finished']} finished, {c['n_failed']} failed"
+        f"Runs: {c['n_runs']} planned {_grid(c['n_runs'], df)}; {c['n_finished']} finished, {c['n_failed']} failed"
         f" ({c['n_diverged']} diverged), {c['n_missing'] + c['n_running']} missing."
         f" Baseline: `{prof.baseline}`. Expected runtime: {prof.estimate(c['n_runs'], prof.jobs)}.",
         "",
@@ -141,6 +140,15 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
         "",
     ]
     return "\n".join(lines)
+
+
+def _grid(n_runs: int, df: pd.DataFrame) -> str:
+    """How the planned runs split: the full product when every variant runs every scene and
+    seed, else the counts (scenes with their own variants or seeds)."""
+    v, sc, se = df.variant.nunique(), df.scene.nunique(), df.seed.nunique()
+    if n_runs == v * sc * se:
+        return f"= {v} variants × {sc} scenes × {se} seeds"
+    return f"over {v} variants, {sc} scenes and {se} seeds (not every variant on every scene and seed)"
 
 
 FINGERPRINT = ".fingerprint"  # what a report was made from: its runs and the code that wrote it

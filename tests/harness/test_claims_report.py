@@ -145,3 +145,13 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     again = Path("reports/index.md").read_text()
     assert rows(again) == rows(page) and "the tracking store here having no runs of them: `mini`." in again
     assert "Read from their committed reports" not in page
+
+
+def test_the_run_count_line_multiplies_only_a_full_grid() -> None:
+    from harness.report.writer import _grid
+
+    full = pd.DataFrame({"variant": ["a", "a", "b", "b"], "scene": ["s"] * 4, "seed": [0, 1, 0, 1]})
+    assert _grid(4, full) == "= 2 variants × 1 scenes × 2 seeds"
+    # secret3's shape: each scene runs its own variants (and some fewer seeds): no product
+    ragged = pd.DataFrame({"variant": ["a", "a", "b"], "scene": ["s", "s", "t"], "seed": [0, 1, 0]})
+    assert _grid(3, ragged).startswith("over 2 variants, 2 scenes and 2 seeds (not every")
