@@ -10,6 +10,7 @@ import pandas as pd
 
 from harness.analysis.budget import METRICS, BudgetSearch
 from harness.report.plots import save_figure
+from harness.spec.metrics import label
 
 
 def frame(found: BudgetSearch) -> pd.DataFrame:
@@ -20,17 +21,13 @@ def frame(found: BudgetSearch) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _label(found: BudgetSearch) -> str:
-    return "PSNR colour-aligned" if found.metric == "psnr_cc" else "PSNR"
-
-
 def markdown(found: BudgetSearch) -> str:
     table = frame(found)
     lines = [f"# The smallest budget scene `{found.scene}` needs", "",
              f"Doubling from {table.budget.min()} Gaussians while doubling gains at least {found.threshold:g} dB of"
              f" {METRICS[found.metric]} (`{found.metric}`), then bisecting; each budget judged against the largest"
              " tried.", "",
-             f"| Gaussians | runs | {_label(found)} (dB) | train time (s) |", "|---:|---:|---:|---:|"]
+             f"| Gaussians | runs | {label(found.metric)} | train time (s) |", "|---:|---:|---:|---:|"]
     for r in table.itertuples():
         mark = " **(chosen)**" if r.budget == found.chosen else ""
         lines.append(f"| {r.budget}{mark} | {r.n} | {r.psnr_mean:.2f} ± {r.psnr_std:.2f} | {r.train_seconds:.1f} |")
@@ -63,7 +60,8 @@ def write(found: BudgetSearch, out: Path) -> Path:
     ax.set_xscale("log", base=2)
     ax.set_xlabel("Gaussians")
     ax.set_ylabel(f"{METRICS[found.metric]} (dB)")
-    ax.set_title(f"{found.scene}: {_label(found)} per budget (mean ± std over seeds)", fontsize=10)
+    ax.set_title(f"{found.scene}: {label(found.metric).removesuffix(' (dB)')} per budget (mean ± std over seeds)",
+                 fontsize=10)
     ax.grid(alpha=0.3)
     save_figure(fig, out / "budget.png")
     (out / "budget.md").write_text(markdown(found))
