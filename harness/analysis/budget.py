@@ -64,7 +64,7 @@ class BudgetSearch:
     scene: str
     threshold: float
     metric: str = "psnr"  # what the search judges: psnr or psnr_cc (METRICS)
-    psnr: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed value of ``metric``
+    scores: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed value of ``metric``
     seconds: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed train seconds
     steps: list[str] = field(default_factory=list)  # one line per decision
     chosen: int | None = None
@@ -72,11 +72,11 @@ class BudgetSearch:
 
     @property
     def best(self) -> int:
-        return max(self.psnr)
+        return max(self.scores)
 
     def gap(self) -> Gain:
         """The chosen budget's PSNR deficit to the largest budget tried."""
-        return gain(np.array(self.psnr[self.chosen]), np.array(self.psnr[self.best]))
+        return gain(np.array(self.scores[self.chosen]), np.array(self.scores[self.best]))
 
     def seconds_saved(self) -> float:
         return float(np.mean(self.seconds[self.best]) - np.mean(self.seconds[self.chosen]))

@@ -64,13 +64,13 @@ def search(scene: StudyScene, *, start: int = 500, max_budget: int = 64_000, thr
     overrides = list(overrides or [])
 
     def measure(budget: int) -> np.ndarray:
-        if budget not in found.psnr:
-            budgets = sorted({*found.psnr, budget})
+        if budget not in found.scores:
+            budgets = sorted({*found.scores, budget})
             spec = study_for(name, scene, budgets, seeds, overrides, jobs, metric)
             sel = Selection(variants=[f"b{budget}"])
             run_study(name, sel, jobs=jobs, echo=echo, study=spec, **run_kw)
             _read(found, spec, sel, budget)
-        return np.array(found.psnr[budget])
+        return np.array(found.scores[budget])
 
     low, high = None, start
     measure(high)
@@ -94,7 +94,7 @@ def search(scene: StudyScene, *, start: int = 500, max_budget: int = 64_000, thr
         if mid in (lo, high):
             break
         ok = B.sufficient(measure(mid), best, threshold)
-        found.steps.append(f"{mid}: {np.mean(best) - np.mean(found.psnr[mid]):+.3f} dB below {top}"
+        found.steps.append(f"{mid}: {np.mean(best) - np.mean(found.scores[mid]):+.3f} dB below {top}"
                            f" -> {'enough' if ok else 'not enough'}")
         lo, high = (lo, mid) if ok else (mid, high)
     found.chosen = high
@@ -110,7 +110,7 @@ def _read(found: BudgetSearch, spec: StudySpec, sel: Selection, budget: int) -> 
     for rec in load_runs(open_store(uri), exp, spec.name):
         if rec.key in keys and rec.status == "FINISHED":
             latest[rec.key] = rec
-    found.psnr[budget] = [r.metrics[found.metric] for r in latest.values() if found.metric in r.metrics]
+    found.scores[budget] = [r.metrics[found.metric] for r in latest.values() if found.metric in r.metrics]
     found.seconds[budget] = [r.metrics.get("train_seconds", np.nan) for r in latest.values()]
-    if len(found.psnr[budget]) == 0:
+    if len(found.scores[budget]) == 0:
         raise InputError(f"budget {budget}", f"no run finished (their errors: MLflow experiment ftgspp/{spec.name})")

@@ -17,7 +17,7 @@ def frame(found: BudgetSearch) -> pd.DataFrame:
     """One row per budget tried: runs, mean ± std PSNR, mean train seconds."""
     rows = [{"budget": b, "n": len(p), "psnr_mean": float(np.mean(p)), "psnr_std": float(np.std(p, ddof=1))
              if len(p) > 1 else np.nan, "train_seconds": float(np.nanmean(found.seconds[b]))}
-            for b, p in sorted(found.psnr.items())]
+            for b, p in sorted(found.scores.items())]
     return pd.DataFrame(rows)
 
 
