@@ -146,6 +146,16 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     assert rows(again) == rows(page) and "the tracking store here having no runs of them: `mini`." in again
     assert "Read from their committed reports" not in page
 
+    # make reports in that checkout: the committed report is current, so mini runs nothing ...
+    plan = plan_frame(reports_root=Path("reports")).set_index("study")
+    assert plan.loc["mini", ["finished", "to_run", "source"]].tolist() == [6, 0, "committed report"]
+    assert plan.loc["later", "to_run"] == 6
+    import harness.tracking.provenance as provenance
+
+    provenance.trainer_fingerprint.cache_clear()
+    monkeypatch.setattr(provenance, "trainer_fingerprint", lambda root=None: "0ther0ther00")
+    assert plan_frame(reports_root=Path("reports")).set_index("study").loc["mini", "to_run"] == 6  # ... until the trainer changes
+
 
 def test_the_run_count_line_multiplies_only_a_full_grid() -> None:
     from harness.report.writer import _grid
