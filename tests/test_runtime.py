@@ -54,3 +54,46 @@ def test_device_resolution():
     if not torch.cuda.is_available():
         with pytest.raises(InputError, match="no CUDA device"):
             resolve_device("cuda")
+
+
+_VECTOR_REGISTERS = """
+import re
+import ftgspp.runtime.jit  # noqa: F401  (chooses the features before the first kernel below)
+from numba import njit
+
+@njit(fastmath=False, error_model="numpy")
+def fma_loop(a, b, c):
+    for i in range(a.shape[0]):
+        a[i] = a[i] * b[i] + c[i]
+
+fma_loop.compile("void(float32[::1], float32[::1], float32[::1])")  # compiled, never run
+asm = "".join(fma_loop.inspect_asm().values())
+print(len(re.findall(r"%zmm\\d+", asm)), len(re.findall(r"%ymm\\d+", asm)))
+"""
+
+
+def _registers(**numba_env: str) -> tuple[int, int]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CPU")} | numba_env
+    r = subprocess.run([sys.executable, "-c", _VECTOR_REGISTERS], env=env, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
+    zmm, ymm = map(int, r.stdout.split())
+    return zmm, ymm
+
+
+def test_kernels_for_an_intel_avx512_cpu_use_512_bit_vectors():
+    """LLVM's Intel tuning would compile the loop with 256-bit vectors (zmm 0, as the hand-chosen
+    features show); importing the kernels' JIT options lifts it. Compiled only: any x86-64 host."""
+    assert _registers(NUMBA_CPU_NAME="sapphirerapids", NUMBA_CPU_FEATURES="+prefer-256-bit")[0] == 0
+    zmm, _ = _registers(NUMBA_CPU_NAME="sapphirerapids", NUMBA_CPU_FEATURES="")
+    assert zmm > 0
+    assert _registers(NUMBA_CPU_NAME="haswell", NUMBA_CPU_FEATURES="")[0] == 0  # AVX2: nothing to widen
+
+
+def test_widened_features_leave_hand_chosen_features_and_avx2_alone():
+    from ftgspp.runtime.jit import PREFER_256, vector_lanes, widened_features
+
+    assert widened_features({"NUMBA_CPU_NAME": "skylake-avx512", "NUMBA_CPU_FEATURES": ""}) == PREFER_256
+    assert widened_features({"NUMBA_CPU_NAME": "znver3", "NUMBA_CPU_FEATURES": ""}) is None
+    assert widened_features({"NUMBA_CPU_NAME": "znver4", "NUMBA_CPU_FEATURES": "+avx512f"}) is None
+    # the lanes follow the named CPU when the features only change its tuning
+    assert vector_lanes({"NUMBA_CPU_NAME": "sapphirerapids", "NUMBA_CPU_FEATURES": PREFER_256}) == 16

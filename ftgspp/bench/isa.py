@@ -58,13 +58,25 @@ def host_isa() -> dict[str, Any]:
     target_vec = TARGET_ISA.get(target, host_vec) if target != host else host_vec
     return {"host_cpu": host, "host_isa": ISA_NAMES[host_vec], "numba_target": target,
             "numba_isa": ISA_NAMES.get(target_vec, target_vec),
+            "numba_wide": widened(),
             "torch_kernels": torch.backends.cpu.get_cpu_capability()}
+
+
+def widened() -> bool:
+    """Whether this process's Numba compiles with LLVM's 256-bit preference lifted
+    (``ftgspp.runtime.jit.widen_vectors``: Intel AVX-512 targets)."""
+    from numba.core import config
+
+    from ftgspp.runtime.jit import PREFER_256
+
+    return bool(config.CPU_FEATURES and config.CPU_FEATURES.split(",")[-1] == PREFER_256)
 
 
 def describe(isa: dict[str, Any]) -> str:
     """One line for a benchmark table."""
     return (f"host {isa['host_cpu']} ({isa['host_isa']}); Numba kernels for {isa['numba_target']}"
-            f" ({isa['numba_isa']}); torch kernels {isa['torch_kernels']}")
+            f" ({isa['numba_isa']}); torch kernels {isa['torch_kernels']}"
+            + ("; LLVM's 256-bit vector preference lifted" if isa.get("numba_wide") else ""))
 
 
 def check_target(target: str) -> None:

@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import importlib
 import os
+from collections.abc import Mapping
 
 import numba
+from numba.core import config as numba_config
 
 JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
 
@@ -55,22 +57,64 @@ AVX512_CPUS = frozenset((
 ))  # fmt: skip
 
 
-def vector_lanes() -> int:
+def vector_lanes(environ: Mapping[str, str] = os.environ) -> int:
     """float32 lanes of the widest vectors the Numba kernels are compiled for: 16 with
     AVX-512, else 8 (AVX2; narrower ISAs split 8 lanes over several registers).
 
-    The target is the one Numba compiles for: ``NUMBA_CPU_FEATURES`` when set, else the named
-    CPU (``NUMBA_CPU_NAME``, ``AVX512_CPUS``), else the host. Kernels size their vectorised
-    loops with it; their results do not depend on it, only their speed."""
-    features = os.environ.get("NUMBA_CPU_FEATURES")
-    if features:
-        return 16 if "+avx512f" in features.split(",") else 8
-    name = os.environ.get("NUMBA_CPU_NAME", "host")
-    if name not in ("", "host"):
-        return 16 if name in AVX512_CPUS else 8
+    As Numba decides: without ``NUMBA_CPU_FEATURES`` the host's features, whatever
+    ``NUMBA_CPU_NAME`` says; with it, ``avx512f`` when the string names it (``+`` or ``-``),
+    else the named CPU's defaults (``AVX512_CPUS``), else the host's. Kernels size their
+    vectorised loops with it; their results do not depend on it, only their speed."""
+    features = environ.get("NUMBA_CPU_FEATURES")
+    if features is not None:
+        flags = features.split(",")
+        if "+avx512f" in flags or "-avx512f" in flags:
+            return 16 if "+avx512f" in flags else 8
+        name = environ.get("NUMBA_CPU_NAME") or "host"
+        if name != "host":
+            return 16 if name in AVX512_CPUS else 8
     import llvmlite.binding as ll
 
     return 16 if ll.get_host_cpu_features().get("avx512f") else 8
+
+
+PREFER_256 = "-prefer-256-bit"  # LLVM tuning feature, removed: 512-bit vectors on AVX-512 targets
+
+
+def widened_features(environ: Mapping[str, str] = os.environ) -> str | None:
+    """The Numba CPU features that let LLVM use 512-bit vectors on an AVX-512 target, or None
+    to leave Numba's choice (no AVX-512, or ``NUMBA_CPU_FEATURES`` chosen by hand).
+
+    LLVM's tuning for Intel's AVX-512 CPUs (``skylake-avx512`` to ``emeraldrapids``) prefers
+    256-bit vectors, against the clock drops of early AVX-512 parts; for AMD's (``znver4``) it
+    does not. The raster kernels' 16-column rows are one 512-bit vector; compiled with 256-bit
+    ones they lose the speed of both widths (``ftgspp bench render --asm`` counts the
+    registers). The answer is the features Numba would use with that tuning removed: the
+    host's (Numba's choice unless ``NUMBA_CPU_FEATURES`` is set, whatever ``NUMBA_CPU_NAME``
+    says) or, when it is set empty, the named CPU's defaults; plus ``-prefer-256-bit``."""
+    features = environ.get("NUMBA_CPU_FEATURES")
+    if features or vector_lanes(environ) != 16:
+        return None
+    if features == "" and (environ.get("NUMBA_CPU_NAME") or "host") != "host":
+        return PREFER_256  # the named CPU's defaults, minus the tuning
+    import llvmlite.binding as ll
+
+    return f"{ll.get_host_cpu_features().flatten()},{PREFER_256}"
+
+
+def widen_vectors() -> bool:
+    """Apply ``widened_features()`` to this process's Numba; True when it changed anything.
+
+    It changes the machine code, never the results (no fast-math: lanes never reorder the
+    arithmetic). It must run before Numba builds its code generator, which its first ``@njit``
+    definition does: this module calls it when imported, and every kernel module imports it
+    before defining a kernel. It sets Numba's config, not the environment, so a child process
+    (or another target of ``ftgspp bench --target``) decides for itself."""
+    features = widened_features()
+    if features is None:
+        return False
+    numba_config.CPU_FEATURES = features
+    return True
 
 
 _short_loops = False
@@ -93,3 +137,6 @@ def allow_short_vector_loops() -> None:
 
         ll.set_option("ftgspp", "-vectorizer-min-trip-count=8")
         _short_loops = True
+
+
+widen_vectors()  # before any kernel module defines its first kernel (see the docstring)
