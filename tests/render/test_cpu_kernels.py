@@ -119,9 +119,9 @@ def test_column_blocks_hold_every_pixel_a_gaussian_can_reach(rb: int) -> None:
 
 
 def test_vector_lanes_follow_the_compile_target(monkeypatch: pytest.MonkeyPatch) -> None:
-    from ftgspp.runtime.jit import vector_lanes
-
     import llvmlite.binding as ll
+
+    from ftgspp.runtime.jit import vector_lanes
 
     host = 16 if ll.get_host_cpu_features().get("avx512f") else 8
     for name, features, lanes in (("haswell", "", 8), ("znver3", "", 8), ("skylake-avx512", "", 16),
