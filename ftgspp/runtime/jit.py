@@ -13,6 +13,10 @@ first parallel kernel runs, so ``ftgspp.runtime.enter`` and the entry points of 
 backend (``render.cpu.rasterize``, ``render.prepare.prepare``, ``ssim_cpu.ssim_same_cpu``)
 call it first; importing a module never does. It is idempotent and cheap after the first call.
 
+``widen_vectors()`` is the one thing importing this module does: on an AVX-512 target it lifts
+LLVM's preference for 256-bit vectors (Intel's tuning), which must happen before the first
+kernel is defined; the kernels' rows are sized by ``vector_lanes()``.
+
     from ftgspp.runtime.jit import JIT, configure_numba
     @njit(parallel=True, **JIT)
     def kernel(...): ...
@@ -97,9 +101,9 @@ def widened_features(environ: Mapping[str, str] = os.environ) -> str | None:
         return None
     if features == "" and (environ.get("NUMBA_CPU_NAME") or "host") != "host":
         return PREFER_256  # the named CPU's defaults, minus the tuning
-    import llvmlite.binding as ll
+    from numba.core.codegen import get_host_cpu_features  # the host's features as Numba reads them
 
-    return f"{ll.get_host_cpu_features().flatten()},{PREFER_256}"
+    return f"{get_host_cpu_features()},{PREFER_256}"
 
 
 def widen_vectors() -> bool:
