@@ -25,13 +25,14 @@ from pathlib import Path
 
 import pandas as pd
 
+from harness.analysis.reproduction import KEY as RUN_KEY
 from harness.report import COMMITTED_REPORTS
 from harness.spec.study import jobs_speedup
 
 OVERHEAD = 1.45  # wall time of a run / its train_seconds (evaluation, diagnostics, logging): ~12 s on ~26 s
 
 
-KEY = ["variant", "scene", "seed", "config_hash"]  # one planned run
+KEY = [*RUN_KEY, "config_hash"]  # one planned run: the key study check matches runs by, and its config
 
 
 def committed_current(df: pd.DataFrame, committed: Path, trainer: str) -> bool:

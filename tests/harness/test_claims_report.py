@@ -152,7 +152,6 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     assert plan.loc["later", "to_run"] == 6
     import harness.tracking.provenance as provenance
 
-    provenance.trainer_fingerprint.cache_clear()
     monkeypatch.setattr(provenance, "trainer_fingerprint", lambda root=None: "0ther0ther00")
     assert plan_frame(reports_root=Path("reports")).set_index("study").loc["mini", "to_run"] == 6  # ... until the trainer changes
 
