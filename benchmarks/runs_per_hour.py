@@ -10,6 +10,12 @@ compare figures from one run of this script.
 
     .venv/bin/python benchmarks/runs_per_hour.py                    # 6 quick runs on studio
     .venv/bin/python benchmarks/runs_per_hour.py --runs 8 --preset transient --json
+    .venv/bin/python benchmarks/runs_per_hour.py --target haswell   # as on an AVX2-only host
+
+``--target CPU`` makes every process of the study compile its Numba kernels for that LLVM CPU
+(its default features, in a kernel cache of its own that a warm-up fills before the clock
+starts) and caps torch and oneDNN at its vector ISA, as ``ftgspp bench --target`` does, so an
+AVX-512 host measures what an AVX2 host's instruction set gives (not its microarchitecture).
 """
 
 from __future__ import annotations
@@ -73,14 +79,33 @@ def summarise(wall_s: float, runs: list[dict], study_start: float) -> dict:
     }  # fmt: skip
 
 
+def target_environment(target: str, cache: Path) -> dict[str, str]:
+    """Environment of a study whose processes compile their kernels for ``target`` into ``cache``
+    and run torch's kernels for its ISA (``ftgspp.bench.isa``)."""
+    from ftgspp.bench.isa import target_torch_environment
+
+    return {"NUMBA_CPU_NAME": target, "NUMBA_CPU_FEATURES": "", "NUMBA_CACHE_DIR": str(cache),
+            **target_torch_environment(target)}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=6)
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--preset", default="studio")
     p.add_argument("--profile", default="quick", help="the trainer profile of each run (quick or smoke)")
+    p.add_argument("--target", default="host", help="LLVM CPU to compile the kernels for (default: host)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
+    if args.target != "host":
+        from ftgspp.bench.isa import check_target
+        from ftgspp.errors import InputError
+
+        try:
+            check_target(args.target)
+        except InputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     with tempfile.TemporaryDirectory(prefix="ftgspp-rph-") as tmp:
         work = Path(tmp)
         studies = work / "studies"
@@ -89,6 +114,11 @@ def main(argv: list[str] | None = None) -> int:
                                                        preset=args.preset))
         env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
         env.update(FTGSPP_STUDIES=str(studies), PYTHONPATH=str(ROOT))
+        if args.target != "host":
+            env.update(target_environment(args.target, work / "numba-cache"))
+            warm = [sys.executable, "-m", "ftgspp.bench", "train", "--backends", "cpu", "--iterations", "2",
+                    "--repeats", "1", "--json"]  # the kernels compiled for the target before the clock starts
+            subprocess.run(warm, cwd=work, env=env, capture_output=True, check=True)
         start = time.time()
         proc = subprocess.run([sys.executable, "-m", "harness.cli.study", "run", "rph", "--profile", "quick"],
                               cwd=work, env=env, capture_output=True, text=True)
@@ -106,11 +136,13 @@ def main(argv: list[str] | None = None) -> int:
                 runs.append({"start": info.start_time / 1000.0, "end": info.end_time / 1000.0,
                              **{p: rec.metrics[p] for p in PHASES if p in rec.metrics}})
     result = {**summarise(wall, runs, start), "jobs": args.jobs, "preset": args.preset, "profile": args.profile,
+              "target": args.target,
               "cpu_count": os.cpu_count(), "load_average_after": os.getloadavg()[0]}
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"{result['runs']} {args.profile} runs on {args.preset}, {args.jobs} at a time: {wall / 60:.1f} min,"
+        print(f"{result['runs']} {args.profile} runs on {args.preset}, {args.jobs} at a time, kernels for "
+              f"{args.target}: {wall / 60:.1f} min,"
               f" {result['runs_per_hour']:.0f} runs per hour")
         ph = result["phases_s_median"]
         print(f"per run (medians, s): wall {result['run_wall_s_median']:.1f}; " + ", ".join(

@@ -250,6 +250,10 @@ METRICS: dict[str, Metric] = {
 }
 
 
+# D-SSIM metrics and the SSIM each is computed from ((1 - ssim) / 2, as ``dssim`` does)
+_FROM_SSIM = {"dssim1": "ssim1", "dssim2": "ssim2"}
+
+
 def available_metrics(lpips: Mapping[str, torch.nn.Module] | None = None) -> list[str]:
     """Names in ``METRICS`` that can be computed with the given LPIPS models."""
     models = lpips or {}
@@ -281,8 +285,16 @@ def evaluate_images(
     sums = dict.fromkeys(names, 0.0)
     for i in range(pred.shape[0]):
         p, g = pred[i : i + 1], gt[i : i + 1]
+        values: dict[str, Tensor] = {}
         for name in names:
-            sums[name] += float(METRICS[name].fn(p, g, models)[0])
+            source = _FROM_SSIM.get(name)
+            if source is not None and name not in values:  # D-SSIM from this frame's SSIM: one pass, not two
+                if source not in values:
+                    values[source] = METRICS[source].fn(p, g, models)
+                values[name] = (1.0 - values[source]) / 2.0  # dssim's own expression: the same bits
+            elif name not in values:
+                values[name] = METRICS[name].fn(p, g, models)
+            sums[name] += float(values[name][0])
     return {name: total / pred.shape[0] for name, total in sums.items()}
 
 

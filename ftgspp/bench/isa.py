@@ -4,9 +4,10 @@ The ``cpu`` backend's Numba kernels are compiled for the host's CPU (LLVM's host
 features) unless ``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES`` say otherwise; torch picks its
 own kernel set (``torch.backends.cpu.get_cpu_capability``). ``host_isa`` records both with
 every benchmark result. ``run_for_target`` re-runs a benchmark in a child process whose Numba
-kernels are compiled for a named LLVM CPU (its default features, its own empty cache), so an
-AVX-512 host can measure what an AVX2 host gets; a target whose instructions this host lacks
-is refused (the child would die of an illegal instruction). ``kernel_registers`` counts the
+kernels are compiled for a named LLVM CPU (its default features, its own empty cache) and
+whose torch and oneDNN kernels are capped at that CPU's vector ISA, so an AVX-512 host can
+measure what an AVX2 host gets, PyTorch's part of an iteration included; a target whose
+instructions this host lacks is refused (the child would die of an illegal instruction). ``kernel_registers`` counts the
 vector registers in the compiled rasterizer kernels' assembly: ``zmm`` are 512-bit, ``ymm``
 256-bit, ``xmm`` 128-bit (and scalar floating point).
 """
@@ -32,6 +33,9 @@ TARGET_ISA = {
     "sapphirerapids": "avx512f", "znver4": "avx512f",
 }  # fmt: skip
 ISA_NAMES = {"avx512f": "AVX-512", "avx2": "AVX2", "sse4.2": "SSE4.2", "sse2": "SSE2"}
+# What a host of each ISA gets from torch (``ATEN_CPU_CAPABILITY``) and oneDNN (``ONEDNN_MAX_CPU_ISA``)
+TORCH_KERNELS = {"avx512f": "avx512", "avx2": "avx2", "sse4.2": "default", "sse2": "default"}
+ONEDNN_ISA = {"avx512f": "AVX512_CORE", "avx2": "AVX2", "sse4.2": "SSE41", "sse2": "SSE41"}
 ORDER = ("sse2", "sse4.2", "avx2", "avx512f")
 
 
@@ -90,6 +94,13 @@ def check_target(target: str) -> None:
                                      "lacks: its kernels would stop on an illegal instruction")
 
 
+def target_torch_environment(target: str) -> dict[str, str]:
+    """Environment that caps torch's kernel dispatch and oneDNN at ``target``'s vector ISA, as
+    on a host of that CPU (a cap above this host's ISA changes nothing: torch takes the lower)."""
+    need = TARGET_ISA[target]
+    return {"ATEN_CPU_CAPABILITY": TORCH_KERNELS[need], "ONEDNN_MAX_CPU_ISA": ONEDNN_ISA[need]}
+
+
 CHILD_FLAG = "FTGSPP_BENCH_CHILD"  # set in the child: it runs the benchmark itself
 
 
@@ -103,6 +114,7 @@ def run_for_target(argv: list[str], target: str, timeout: float = 3600.0) -> dic
         env = dict(os.environ, NUMBA_CACHE_DIR=cache, **{CHILD_FLAG: "1"})
         if target != "host":
             env.update(NUMBA_CPU_NAME=target, NUMBA_CPU_FEATURES="")  # the target's own default features
+            env.update(target_torch_environment(target))
         proc = subprocess.run([sys.executable, "-m", "ftgspp.bench", *argv, "--json"], env=env,
                               capture_output=True, text=True, timeout=timeout)
     if proc.returncode != 0:

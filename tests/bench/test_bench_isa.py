@@ -4,7 +4,9 @@ process with its own kernel cache, refusing a target this host cannot execute.""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
+import sys
 
 import pytest
 
@@ -69,6 +71,18 @@ def test_the_child_compiles_for_the_target_in_its_own_cache(monkeypatch: pytest.
     env = seen["env"]
     assert env["NUMBA_CPU_NAME"] == "haswell" and env["NUMBA_CPU_FEATURES"] == ""  # the target's own features
     assert env["NUMBA_CACHE_DIR"] and env[isa.CHILD_FLAG] == "1"
+    assert env["ATEN_CPU_CAPABILITY"] == "avx2" and env["ONEDNN_MAX_CPU_ISA"] == "AVX2"  # torch as on that CPU
     assert seen["argv"][-5:] == ["ftgspp.bench", "render", "--n", "5", "--json"]  # no --target in the child
     assert cli.main(["render", "--n", "5", "--target=haswell"]) == 0
     assert "Numba kernels for haswell (AVX2)" in capsys.readouterr().out  # the table names it
+
+
+def test_a_target_caps_torch_at_its_own_isa() -> None:
+    assert isa.target_torch_environment("znver3")["ATEN_CPU_CAPABILITY"] == "avx2"
+    assert isa.target_torch_environment("generic") == {"ATEN_CPU_CAPABILITY": "default", "ONEDNN_MAX_CPU_ISA": "SSE41"}
+    assert isa.target_torch_environment("sapphirerapids")["ATEN_CPU_CAPABILITY"] == "avx512"
+    if isa.widest(isa._host_features()) in ("avx2", "avx512f"):  # torch on this host takes the cap
+        env = dict(os.environ, **isa.target_torch_environment("haswell"))
+        code = "import torch; print(torch.backends.cpu.get_cpu_capability())"
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+        assert out.stdout.strip() == "AVX2"

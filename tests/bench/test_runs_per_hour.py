@@ -2,19 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "runs_per_hour.py"
+from bench_scripts import load_script
 
 
 def load():
-    spec = importlib.util.spec_from_file_location("runs_per_hour", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("runs_per_hour")
 
 
 def test_summary_splits_a_run_into_its_phases_and_the_rest() -> None:
@@ -26,3 +21,16 @@ def test_summary_splits_a_run_into_its_phases_and_the_rest() -> None:
     assert out["runs_per_hour"] == pytest.approx(4 * 3600 / 120)
     assert out["run_wall_s_median"] == 50.0 and out["rest_s_median"] == pytest.approx(10.0)
     assert out["phases_s_median"]["train_seconds"] == 30.0 and out["before_first_run_s"] == 20.0
+
+
+def test_a_target_compiles_for_its_cpu_in_its_own_cache_and_caps_torch(tmp_path: Path) -> None:
+    env = load().target_environment("haswell", tmp_path / "cache")
+    assert env["NUMBA_CPU_NAME"] == "haswell" and env["NUMBA_CPU_FEATURES"] == ""  # the target's own features
+    assert env["NUMBA_CACHE_DIR"] == str(tmp_path / "cache")
+    assert env["ATEN_CPU_CAPABILITY"] == "avx2" and env["ONEDNN_MAX_CPU_ISA"] == "AVX2"
+
+
+def test_an_unknown_target_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    assert load().main(["--target", "pentium-mmx"]) == 2  # refused before any study starts
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown CPU target" in err[0]

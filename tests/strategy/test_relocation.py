@@ -159,3 +159,18 @@ def test_schedule():
     assert not r.due(500) and r.due(600) and not r.due(650) and not r.due(25_000) and r.due(24_900)
     with pytest.raises(Exception, match="strategy.relocation"):
         Relocator(StrategyConfig(relocation="teleport"))
+
+
+def test_statistics_add_the_gradient_norm_of_visible_gaussians_only():
+    reloc = Relocator(StrategyConfig())
+    state = reloc.initialize_state(6)
+    radii = torch.tensor([[2, 3], [0, 3], [1, 0], [4, 4], [0, 0], [1, 1]], dtype=torch.int32)
+    grads = [torch.tensor([[3.0, 4.0], [1.0, 1.0], [2.0, 2.0], [0.0, -2.0], [5.0, 5.0], [-6.0, 8.0]]),
+             torch.tensor([[0.0, 1.0], [9.0, 9.0], [9.0, 9.0], [1.5, 2.0], [9.0, 9.0], [0.0, 0.0]])]
+    for g in grads:
+        reloc.accumulate(state, g, radii)
+    visible = [True, False, False, True, False, True]  # both radii > 0
+    for i, vis in enumerate(visible):  # by hand: the sum of ||g_i|| over the passes that saw i
+        expect = sum(math.hypot(*g[i].tolist()) for g in grads) if vis else 0.0
+        assert state["grad2d"][i].item() == pytest.approx(expect, rel=1e-6)
+        assert state["count"][i].item() == (2.0 if vis else 0.0)
