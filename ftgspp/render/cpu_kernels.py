@@ -16,7 +16,8 @@ power evaluated in the reference rasterizer's rounding order,
 2. ``balance_tiles``: tiles are dealt to one list per thread, largest estimated cost first
    (LPT), because Numba's ``prange`` splits its range statically.
 3. ``render_forward`` (parallel over the lists): sorts each tile's list by
-   ``(order-preserving depth bits << 32) | index`` and composites Gaussian by Gaussian,
+   ``(order-preserving depth bits << 32) | index`` (a stable radix sort on the depth bits of
+   the index-ordered list) and composites Gaussian by Gaussian,
    front to back. A Gaussian is evaluated on its tile rows in blocks of ``RB`` columns, one
    vector of the compile target's float32 lanes (16 with AVX-512, 8 with AVX2), skipping the
    blocks its column span misses; each block is one branch-free loop that the compiler
@@ -42,7 +43,9 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.extending import intrinsic
 
 from ftgspp.render.contract import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE_SIZE
 from ftgspp.runtime.jit import JIT, allow_short_vector_loops, vector_lanes
@@ -96,10 +99,11 @@ _LOG2E = np.float32(1.44269504088896341)
 _LN2_HI = np.float32(0.693359375)
 _LN2_LO = np.float32(-2.12194440e-4)
 _EXP_LO = np.float32(-8.0)  # exp(-8) < 1/255: below it every alpha is rejected anyway
+_BIAS = np.float32(127.0)  # float32 exponent bias
+_MANTISSA = np.float32(1 << 23)  # one unit of the exponent field
 _P0, _P1, _P2, _P3, _P4, _P5 = (
     np.float32(c) for c in (1.9875691500e-4, 1.3981999507e-3, 8.3334519073e-3, 4.1665795894e-2, 1.6666665459e-1, 5.0000001201e-1)
 )  # fmt: skip
-_TWO_M1, _TWO_M2, _TWO_M4, _TWO_M8 = np.float32(0.5), np.float32(0.25), np.float32(1 / 16), np.float32(1 / 256)
 
 
 class Binning(NamedTuple):
@@ -127,11 +131,25 @@ class Forward(NamedTuple):
     tile_work: np.ndarray  # [n_tiles] float64, the backward pass's estimated work per tile
 
 
+@intrinsic
+def _f32_from_bits(typingctx, bits):
+    """The float32 whose IEEE-754 bits are the low 32 bits of the integer ``bits`` (a bit
+    cast, no conversion; Numba widens int32 arithmetic to int64, hence the truncation)."""
+    if not isinstance(bits, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):
+        low = builder.trunc(args[0], ir.IntType(32)) if bits.bitwidth > 32 else args[0]
+        return builder.bitcast(low, ir.FloatType())
+
+    return types.float32(bits), codegen
+
+
 @njit(**JIT)
 def exp_clamped(power):
     """exp(power) for float32 ``power`` in [-8, 0], within 1 ulp; exp(-8) below, 1 above.
 
-    Pure float32 arithmetic and selects (2^n from exact powers of two), so it vectorises,
+    Pure float32 arithmetic (2^n built from its exponent bits, exactly), so it vectorises,
     and it has the same bits on every machine. Below -8 any alpha is < 1/255 and rejected,
     and positive powers are rejected before their value is used.
     """
@@ -144,12 +162,10 @@ def exp_clamped(power):
     p = p * r + _P4
     p = p * r + _P5
     p = p * (r * r) + r + F1
-    m = np.int32(-fn)
-    s = _TWO_M1 if (m & 1) != 0 else F1
-    s = s * (_TWO_M2 if (m & 2) != 0 else F1)
-    s = s * (_TWO_M4 if (m & 4) != 0 else F1)
-    s = s * (_TWO_M8 if (m & 8) != 0 else F1)
-    return p * s
+    # 2^n, n in [-12, 0], written as a float32's bits: biased exponent 127 + n, zero mantissa,
+    # i.e. the integer (127 + n) 2^23, computed in float32 (exact) so that it vectorises as
+    # one float-to-int32 conversion on AVX2 too
+    return p * _f32_from_bits(np.int32((fn + _BIAS) * _MANTISSA))  # all exact in float32
 
 
 # ------------------------------------------------------------------------------ binning
@@ -373,6 +389,46 @@ def _forward_pixel_rgb(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot, c0, c1, c2)
     return stop, use
 
 
+@njit(inline="always", **JIT)
+def _sort_by_depth(ids, depth_keys):
+    """``ids`` (a tile's Gaussians, equal depths in increasing index order, as ``bin_gaussians``
+    lists them and this sort leaves them) in increasing ``depth_keys`` order, ties by index.
+
+    A stable least-significant-digit radix sort on the 32-bit keys, one byte per pass, a pass
+    skipped when every key has the same byte there (the high bytes of nearby depths): the
+    same order as sorting ``(key << 32) | index``, in a few linear passes instead of a
+    comparison sort's n log n steps with unpredictable branches."""
+    n = ids.shape[0]
+    a = ids.copy()
+    ka = np.empty(n, np.uint32)
+    for i in range(n):
+        ka[i] = depth_keys[a[i]]
+    b = np.empty_like(a)
+    kb = np.empty(n, np.uint32)
+    counts = np.empty(256, np.int64)
+    for shift in range(0, 32, 8):
+        sh = np.uint32(shift)
+        counts[:] = 0
+        for i in range(n):
+            counts[(ka[i] >> sh) & np.uint32(255)] += 1
+        if n == 0 or counts[(ka[0] >> sh) & np.uint32(255)] == n:
+            continue  # one byte value: the pass would keep the order
+        total = 0
+        for d in range(256):
+            c = counts[d]
+            counts[d] = total
+            total += c
+        for i in range(n):
+            d = (ka[i] >> sh) & np.uint32(255)
+            j = counts[d]
+            counts[d] = j + 1
+            b[j] = a[i]
+            kb[j] = ka[i]
+        a, b = b, a
+        ka, kb = kb, ka
+    return a
+
+
 @njit(**_TILE_JIT)
 def _forward_tile(
     tile, means2d, conics, colors, opacities, depths, depth_keys, background, offsets, pair_gauss,
@@ -386,15 +442,11 @@ def _forward_tile(
     tiles_x = (width + TS - 1) // TS
     start = offsets[tile]
     count = offsets[tile + 1] - start
-    keys = np.empty(count, np.uint64)
-    for i in range(count):
-        g = pair_gauss[start + i]
-        keys[i] = (np.uint64(depth_keys[g]) << np.uint64(32)) | np.uint64(g)
-    keys.sort()
+    order = _sort_by_depth(pair_gauss[start : start + count], depth_keys)
     tx = tile % tiles_x
     ty = tile // tiles_x
     for i in range(count):
-        g = np.int64(keys[i] & np.uint64(0xFFFFFFFF))
+        g = np.int64(order[i])
         pair_gauss[start + i] = g
         local = (ty - rect[g, 2]) * (rect[g, 1] - rect[g, 0]) + (tx - rect[g, 0])
         gauss_pairs[gauss_off[g] + local] = start + i

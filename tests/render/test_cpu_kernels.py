@@ -1,5 +1,6 @@
-"""Pieces of the ``cpu`` rasterizer's Numba kernels: depth sort keys, the clamped exp, the
-tile balancing, the tile-list limit, and compiled vs cache-loaded kernels (same bits)."""
+"""Pieces of the ``cpu`` rasterizer's Numba kernels: depth sort keys and each tile's depth
+sort, the clamped exp, the tile balancing, the tile-list limit, and compiled vs cache-loaded
+kernels (same bits)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,18 @@ def test_depth_sort_keys_order_floats() -> None:
     keys = cpu.depth_sort_keys(depths)
     order = np.lexsort((np.arange(len(depths)), keys))
     assert list(order) == list(np.lexsort((np.arange(len(depths)), depths + 0.0)))
+
+
+@pytest.mark.parametrize("spread", [4, 1 << 12, 1 << 31])  # many ties, some, few (bytes of every rank)
+def test_a_tiles_depth_sort_is_by_depth_then_index(spread: int) -> None:
+    rng = np.random.default_rng(spread)
+    depth_keys = rng.integers(0, spread, 3000).astype(np.uint32) | np.uint32(0x80000000)
+    for n in (0, 1, 2, 17, 300, 3000):
+        ids = np.sort(rng.choice(3000, n, replace=False)).astype(np.int32)  # a tile list: index order
+        got = cpu._k._sort_by_depth(ids, depth_keys)
+        want = ids[np.lexsort((ids, depth_keys[ids]))]  # (depth, index), as the old key sort
+        assert got.dtype == ids.dtype and list(got) == list(want)
+        assert list(cpu._k._sort_by_depth(got, depth_keys)) == list(want)  # a sorted list stays
 
 
 def test_exp_clamped_is_within_one_ulp_of_exact_exp() -> None:
