@@ -31,7 +31,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftgspp.bench.isa import TARGET_ISA, target_torch_environment  # noqa: E402
+from ftgspp.bench.isa import check_target, target_torch_environment  # noqa: E402
+from ftgspp.errors import InputError  # noqa: E402
 
 BEFORE = "fa5db78"  # the last commit before `ftgspp bench` named the ISA (issue 23's starting point)
 RENDER = ["render", "--repeats", "50", "--yardstick-repeats", "1", "--no-compile-times", "--json"]
@@ -61,7 +62,8 @@ def export(rev: str, dest: Path) -> Path:
 
 def child_env(tree: Path, target: str, cache: Path) -> dict[str, str]:
     """The environment of one child: ``tree``'s package, its own kernel cache, ``target``'s ISA."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_CPU_", "ATEN_CPU", "ONEDNN_MAX"))}
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("NUMBA_CPU_", "ATEN_CPU", "ONEDNN_MAX", "DNNL_MAX", "FTGSPP_DETERMINISM"))}
     env.update(PYTHONPATH=str(tree), NUMBA_CACHE_DIR=str(cache), FTGSPP_BENCH_CHILD="1")
     if target != "host":
         env.update(NUMBA_CPU_NAME=target, NUMBA_CPU_FEATURES="", **target_torch_environment(target))
@@ -100,14 +102,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="also write every child's result here")
     args = ap.parse_args(argv)
     targets = [t.strip() for t in args.targets.split(",") if t.strip()]
-    unknown = [t for t in targets if t != "host" and t not in TARGET_ISA]
-    if unknown:
-        print(f"error: unknown target(s) {', '.join(unknown)} (choose from host, {', '.join(TARGET_ISA)})",
-              file=sys.stderr)
+    try:
+        for t in targets:
+            if t != "host":
+                check_target(t)  # known, and executable on this host
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
                           text=True, check=True).stdout.strip()
-    dirty = bool(subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
+    dirty = bool(subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain"],
                                 capture_output=True, text=True).stdout.strip())
     after = head + ("+changes" if dirty else "")
     start = time.perf_counter()
@@ -132,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
                     results["load_average"].append(os.getloadavg()[0])
                     if "isa" in tr:  # versions before the ISA work do not report it
                         results["isa"][t] = f"{tr['isa']['numba_isa']}, torch {tr['isa']['torch_kernels']}"
+                    if args.json:  # every finished pair kept, should a later child fail
+                        args.json.write_text(json.dumps(results, indent=1))
     results["wall_s"] = time.perf_counter() - start
     print(table(results, list(results["runs"][targets[0]]), targets))
     print(f"\n{args.rounds} round(s) in {results['wall_s'] / 60:.1f} min; 1-min load after each pair: "

@@ -112,13 +112,19 @@ def main(argv: list[str] | None = None) -> int:
         studies.mkdir()
         (studies / "rph.yaml").write_text(STUDY.format(jobs=args.jobs, runs=args.runs, profile=args.profile,
                                                        preset=args.preset))
-        env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
+        # this machine's own kernels unless --target: no inherited CPU or dispatch choices
+        env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"
+               and not k.startswith(("NUMBA_CPU_", "ATEN_CPU", "ONEDNN_MAX", "DNNL_MAX"))}
         env.update(FTGSPP_STUDIES=str(studies), PYTHONPATH=str(ROOT))
         if args.target != "host":
             env.update(target_environment(args.target, work / "numba-cache"))
             warm = [sys.executable, "-m", "ftgspp.bench", "train", "--backends", "cpu", "--iterations", "2",
                     "--repeats", "1", "--json"]  # the kernels compiled for the target before the clock starts
-            subprocess.run(warm, cwd=work, env=env, capture_output=True, check=True)
+            proc = subprocess.run(warm, cwd=work, env=env, capture_output=True, text=True)
+            if proc.returncode != 0:
+                print(f"error: compiling the kernels for {args.target} failed: "
+                      + (proc.stderr.strip().splitlines() or ["no output"])[-1], file=sys.stderr)
+                return 1
         start = time.time()
         proc = subprocess.run([sys.executable, "-m", "harness.cli.study", "run", "rph", "--profile", "quick"],
                               cwd=work, env=env, capture_output=True, text=True)

@@ -158,7 +158,12 @@ def _fast_ssim_applies(a: Tensor, b: Tensor) -> bool:
 
 def dssim(a: Tensor, b: Tensor, data_range: float = 1.0) -> Tensor:
     """(1 - ssim) / 2 with the evaluation SSIM."""
-    return (1.0 - ssim(a, b, data_range)) / 2.0
+    return dssim_from_ssim(ssim(a, b, data_range))
+
+
+def dssim_from_ssim(s: Tensor) -> Tensor:
+    """D-SSIM from an SSIM value: (1 - s) / 2 (``dssim``'s formula, which evaluation reuses)."""
+    return (1.0 - s) / 2.0
 
 
 def lpips_distance(model: torch.nn.Module, a: Tensor, b: Tensor, zero_one: bool = False) -> Tensor:
@@ -291,7 +296,7 @@ def evaluate_images(
             if source is not None and name not in values:  # D-SSIM from this frame's SSIM: one pass, not two
                 if source not in values:
                     values[source] = METRICS[source].fn(p, g, models)
-                values[name] = (1.0 - values[source]) / 2.0  # dssim's own expression: the same bits
+                values[name] = dssim_from_ssim(values[source])  # what dssim computes: the same bits
             elif name not in values:
                 values[name] = METRICS[name].fn(p, g, models)
             sums[name] += float(values[name][0])

@@ -5,9 +5,11 @@ features) unless ``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES`` say otherwise; torc
 own kernel set (``torch.backends.cpu.get_cpu_capability``). ``host_isa`` records both with
 every benchmark result. ``run_for_target`` re-runs a benchmark in a child process whose Numba
 kernels are compiled for a named LLVM CPU (its default features, its own empty cache) and
-whose torch and oneDNN kernels are capped at that CPU's vector ISA, so an AVX-512 host can
-measure what an AVX2 host gets, PyTorch's part of an iteration included; a target whose
-instructions this host lacks is refused (the child would die of an illegal instruction). ``kernel_registers`` counts the
+whose torch kernel dispatch (``ATEN_CPU_CAPABILITY``) and oneDNN are capped at that CPU's
+vector ISA, so an AVX-512 host can measure what an AVX2 host gets from the instruction set
+(MKL inside torch, glibc's libm, NumPy and OpenCV still choose their own code paths, and the
+microarchitecture stays this host's); a target whose instructions this host lacks is refused
+(the child would die of an illegal instruction). ``kernel_registers`` counts the
 vector registers in the compiled rasterizer kernels' assembly: ``zmm`` are 512-bit, ``ymm``
 256-bit, ``xmm`` 128-bit (and scalar floating point).
 """
@@ -95,8 +97,9 @@ def check_target(target: str) -> None:
 
 
 def target_torch_environment(target: str) -> dict[str, str]:
-    """Environment that caps torch's kernel dispatch and oneDNN at ``target``'s vector ISA, as
-    on a host of that CPU (a cap above this host's ISA changes nothing: torch takes the lower)."""
+    """Environment that caps torch's kernel dispatch and oneDNN at ``target``'s vector ISA
+    (oneDNN's cap is its nearest ISA level). torch takes ``ATEN_CPU_CAPABILITY`` as given, even
+    above what the host has, so check the target first (``check_target``)."""
     need = TARGET_ISA[target]
     return {"ATEN_CPU_CAPABILITY": TORCH_KERNELS[need], "ONEDNN_MAX_CPU_ISA": ONEDNN_ISA[need]}
 

@@ -133,24 +133,22 @@ class Forward(NamedTuple):
 
 @intrinsic
 def _f32_from_bits(typingctx, bits):
-    """The float32 whose IEEE-754 bits are the low 32 bits of the integer ``bits`` (a bit
-    cast, no conversion; Numba widens int32 arithmetic to int64, hence the truncation)."""
-    if not isinstance(bits, types.Integer):
+    """The float32 whose IEEE-754 bits are the int32 ``bits`` (a bit cast, no conversion)."""
+    if bits != types.int32:
         return None
 
     def codegen(context, builder, signature, args):
-        low = builder.trunc(args[0], ir.IntType(32)) if bits.bitwidth > 32 else args[0]
-        return builder.bitcast(low, ir.FloatType())
+        return builder.bitcast(args[0], ir.FloatType())
 
-    return types.float32(bits), codegen
+    return types.float32(types.int32), codegen
 
 
 @njit(**JIT)
 def exp_clamped(power):
     """exp(power) for float32 ``power`` in [-8, 0], within 1 ulp; exp(-8) below, 1 above.
 
-    Pure float32 arithmetic (2^n built from its exponent bits, exactly), so it vectorises,
-    and it has the same bits on every machine. Below -8 any alpha is < 1/255 and rejected,
+    Float32 arithmetic, plus one float-to-int32 conversion and a bit cast that build 2^n
+    exactly from its exponent bits, so it vectorises and has the same bits on every machine. Below -8 any alpha is < 1/255 and rejected,
     and positive powers are rejected before their value is used.
     """
     x = min(max(power, _EXP_LO), F0)
@@ -564,7 +562,7 @@ def render_forward(
     depth_keys: np.ndarray,  # [N] uint32, order-preserving bits of depth
     background: np.ndarray,  # [D] float32
     offsets: np.ndarray,  # [n_tiles + 1] int64
-    pair_gauss: np.ndarray,  # [P] int32, sorted in place per tile by (depth, index)
+    pair_gauss: np.ndarray,  # [P] int32, index order per tile (bin_gaussians'); sorted in place by (depth, index)
     span: np.ndarray,  # [N, 5] float64
     rect: np.ndarray,  # [N, 4] int64
     gauss_off: np.ndarray,  # [N + 1] int64

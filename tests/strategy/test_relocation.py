@@ -165,8 +165,9 @@ def test_statistics_add_the_gradient_norm_of_visible_gaussians_only():
     reloc = Relocator(StrategyConfig())
     state = reloc.initialize_state(6)
     radii = torch.tensor([[2, 3], [0, 3], [1, 0], [4, 4], [0, 0], [1, 1]], dtype=torch.int32)
-    grads = [torch.tensor([[3.0, 4.0], [1.0, 1.0], [2.0, 2.0], [0.0, -2.0], [5.0, 5.0], [-6.0, 8.0]]),
-             torch.tensor([[0.0, 1.0], [9.0, 9.0], [9.0, 9.0], [1.5, 2.0], [9.0, 9.0], [0.0, 0.0]])]
+    nan, inf = float("nan"), float("inf")  # in rows nobody saw: they must not leak into the sums
+    grads = [torch.tensor([[3.0, 4.0], [nan, 1.0], [inf, 2.0], [0.0, -2.0], [5.0, 5.0], [-6.0, 8.0]]),
+             torch.tensor([[0.0, 1.0], [9.0, 9.0], [9.0, 9.0], [1.5, 2.0], [nan, inf], [0.0, 0.0]])]
     for g in grads:
         reloc.accumulate(state, g, radii)
     visible = [True, False, False, True, False, True]  # both radii > 0
