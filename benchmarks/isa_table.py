@@ -31,7 +31,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftgspp.bench.isa import check_target, target_torch_environment  # noqa: E402
+from ftgspp.bench.isa import check_target, target_environment, without_isa_choices  # noqa: E402
 from ftgspp.errors import InputError  # noqa: E402
 
 BEFORE = "fa5db78"  # the last commit before `ftgspp bench` named the ISA (issue 23's starting point)
@@ -62,11 +62,10 @@ def export(rev: str, dest: Path) -> Path:
 
 def child_env(tree: Path, target: str, cache: Path) -> dict[str, str]:
     """The environment of one child: ``tree``'s package, its own kernel cache, ``target``'s ISA."""
-    env = {k: v for k, v in os.environ.items()
-           if not k.startswith(("NUMBA_CPU_", "ATEN_CPU", "ONEDNN_MAX", "DNNL_MAX", "FTGSPP_DETERMINISM"))}
+    env = without_isa_choices({k: v for k, v in os.environ.items() if k != "FTGSPP_DETERMINISM"})
     env.update(PYTHONPATH=str(tree), NUMBA_CACHE_DIR=str(cache), FTGSPP_BENCH_CHILD="1")
     if target != "host":
-        env.update(NUMBA_CPU_NAME=target, NUMBA_CPU_FEATURES="", **target_torch_environment(target))
+        env.update(target_environment(target))
     return env
 
 

@@ -82,10 +82,9 @@ def summarise(wall_s: float, runs: list[dict], study_start: float) -> dict:
 def target_environment(target: str, cache: Path) -> dict[str, str]:
     """Environment of a study whose processes compile their kernels for ``target`` into ``cache``
     and run torch's kernels for its ISA (``ftgspp.bench.isa``)."""
-    from ftgspp.bench.isa import target_torch_environment
+    from ftgspp.bench.isa import target_environment as isa_target_environment
 
-    return {"NUMBA_CPU_NAME": target, "NUMBA_CPU_FEATURES": "", "NUMBA_CACHE_DIR": str(cache),
-            **target_torch_environment(target)}
+    return {**isa_target_environment(target), "NUMBA_CACHE_DIR": str(cache)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -113,8 +112,9 @@ def main(argv: list[str] | None = None) -> int:
         (studies / "rph.yaml").write_text(STUDY.format(jobs=args.jobs, runs=args.runs, profile=args.profile,
                                                        preset=args.preset))
         # this machine's own kernels unless --target: no inherited CPU or dispatch choices
-        env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"
-               and not k.startswith(("NUMBA_CPU_", "ATEN_CPU", "ONEDNN_MAX", "DNNL_MAX"))}
+        from ftgspp.bench.isa import without_isa_choices
+
+        env = without_isa_choices({k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"})
         env.update(FTGSPP_STUDIES=str(studies), PYTHONPATH=str(ROOT))
         if args.target != "host":
             env.update(target_environment(args.target, work / "numba-cache"))

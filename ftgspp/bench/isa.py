@@ -96,12 +96,24 @@ def check_target(target: str) -> None:
                                      "lacks: its kernels would stop on an illegal instruction")
 
 
-def target_torch_environment(target: str) -> dict[str, str]:
-    """Environment that caps torch's kernel dispatch and oneDNN at ``target``'s vector ISA
-    (oneDNN's cap is its nearest ISA level). torch takes ``ATEN_CPU_CAPABILITY`` as given, even
-    above what the host has, so check the target first (``check_target``)."""
+# Environment variables that choose a process's CPU code (Numba's target, torch's dispatch,
+# oneDNN's cap under its new and old names): what a benchmark of "this host" must not inherit
+ISA_CHOICES = ("NUMBA_CPU_", "ATEN_CPU", "ONEDNN_MAX", "DNNL_MAX")
+
+
+def without_isa_choices(environ: dict[str, str]) -> dict[str, str]:
+    """``environ`` minus every variable that chooses CPU code (``ISA_CHOICES``)."""
+    return {k: v for k, v in environ.items() if not k.startswith(ISA_CHOICES)}
+
+
+def target_environment(target: str) -> dict[str, str]:
+    """Environment of a process that runs as on a host of LLVM CPU ``target``: Numba compiles
+    for it (its default features), torch's kernel dispatch and oneDNN are capped at its vector
+    ISA (oneDNN's cap is its nearest ISA level). torch takes ``ATEN_CPU_CAPABILITY`` as given,
+    even above what the host has, so check the target first (``check_target``)."""
     need = TARGET_ISA[target]
-    return {"ATEN_CPU_CAPABILITY": TORCH_KERNELS[need], "ONEDNN_MAX_CPU_ISA": ONEDNN_ISA[need]}
+    return {"NUMBA_CPU_NAME": target, "NUMBA_CPU_FEATURES": "",
+            "ATEN_CPU_CAPABILITY": TORCH_KERNELS[need], "ONEDNN_MAX_CPU_ISA": ONEDNN_ISA[need]}
 
 
 CHILD_FLAG = "FTGSPP_BENCH_CHILD"  # set in the child: it runs the benchmark itself
@@ -116,8 +128,7 @@ def run_for_target(argv: list[str], target: str, timeout: float = 3600.0) -> dic
     with tempfile.TemporaryDirectory(prefix=f"ftgspp-target-{target}-") as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache, **{CHILD_FLAG: "1"})
         if target != "host":
-            env.update(NUMBA_CPU_NAME=target, NUMBA_CPU_FEATURES="")  # the target's own default features
-            env.update(target_torch_environment(target))
+            env.update(target_environment(target))
         proc = subprocess.run([sys.executable, "-m", "ftgspp.bench", *argv, "--json"], env=env,
                               capture_output=True, text=True, timeout=timeout)
     if proc.returncode != 0:

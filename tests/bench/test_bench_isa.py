@@ -78,11 +78,12 @@ def test_the_child_compiles_for_the_target_in_its_own_cache(monkeypatch: pytest.
 
 
 def test_a_target_caps_torch_at_its_own_isa() -> None:
-    assert isa.target_torch_environment("znver3")["ATEN_CPU_CAPABILITY"] == "avx2"
-    assert isa.target_torch_environment("generic") == {"ATEN_CPU_CAPABILITY": "default", "ONEDNN_MAX_CPU_ISA": "SSE41"}
-    assert isa.target_torch_environment("sapphirerapids")["ATEN_CPU_CAPABILITY"] == "avx512"
+    assert isa.target_environment("znver3")["ATEN_CPU_CAPABILITY"] == "avx2"
+    assert isa.target_environment("generic") == {"NUMBA_CPU_NAME": "generic", "NUMBA_CPU_FEATURES": "",
+                                                 "ATEN_CPU_CAPABILITY": "default", "ONEDNN_MAX_CPU_ISA": "SSE41"}
+    assert isa.target_environment("sapphirerapids")["ATEN_CPU_CAPABILITY"] == "avx512"
     if isa.widest(isa._host_features()) in ("avx2", "avx512f"):  # torch on this host takes the cap
-        env = dict(os.environ, **isa.target_torch_environment("haswell"))
+        env = dict(os.environ, **isa.target_environment("haswell"))
         code = "import torch; print(torch.backends.cpu.get_cpu_capability())"
         out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
         assert out.stdout.strip() == "AVX2"
