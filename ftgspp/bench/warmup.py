@@ -46,7 +46,7 @@ def warm_up() -> float:
     t0 = time.perf_counter()
     means2d = torch.tensor([[8.0, 8.0], [20.0, 9.0]], requires_grad=True)
     out = cpu.rasterize(means2d, torch.tensor([[0.1, 0.0, 0.1]] * 2), torch.rand(2, 3), torch.rand(2),
-                        torch.ones(2), torch.tensor([6, 6]), 32, 24)
+                        torch.ones(2), torch.tensor([[6, 6], [6, 6]]), 32, 24)  # radii [N, 2]
     sum(o.sum() for o in out).backward()
     scene = random_scene(4, 32, 24)
     p = prepare(stage_model(scene, 0).params, 0.5, scene["viewmat"], scene["K"], torch.zeros(3), 32, 24, 3, 1.0,

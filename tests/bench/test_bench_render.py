@@ -46,3 +46,9 @@ def test_bench_render_reports_the_compile_probe(monkeypatch: pytest.MonkeyPatch)
     assert "cold 21.5 s, cached 0.50 s" in table and "4.25 ms" in table and "(1.06x)" in table
     failed = dict(probe, cached=None, cached_raster_ms=None)  # the cached probe failed: no line, no crash
     assert "numba compile" not in format_render_table(dict(result, numba_compile_s=failed))
+
+
+def test_the_kernel_warm_up_runs_every_kernel_it_names() -> None:
+    from ftgspp.bench.warmup import warm_up
+
+    assert warm_up() >= 0.0  # it raised on the rasterizer's [N, 2] radii before (study run's warm-up failed)
