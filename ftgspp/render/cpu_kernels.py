@@ -10,9 +10,10 @@ power evaluated in the reference rasterizer's rounding order,
    the contract says); the (tile, Gaussian) pairs are grouped by tile with a counting sort.
    It also fills a per-Gaussian *span table*: the row and column extent of the ellipse
    ``a dx^2 + 2 b dx dy + c dy^2 <= Lm`` that holds every pixel where ``alpha >= 1/255``
-   can hold (``Lm = 2 ln(255 o)`` widened by a bound on float32 rounding). Rows outside it
-   are never visited, nor tiles whose columns it misses; the per-pixel tests decide
-   inside, so results are the same as visiting every pixel of the tile.
+   can hold (``Lm = 2 ln(255 o)`` widened by a bound on float32 rounding). In each tile only
+   the rows this ellipse crosses within the tile's columns are visited (none when it misses
+   them); the per-pixel tests decide inside, so results are the same as visiting every
+   pixel of the tile.
 2. ``balance_tiles``: tiles are dealt to one list per thread, largest estimated cost first
    (LPT), because Numba's ``prange`` splits its range statically.
 3. ``render_forward`` (parallel over the lists): sorts each tile's list by
@@ -76,9 +77,11 @@ _TSU = np.uint64(TS)
 SPAN_REL = 1e-6
 SPAN_ABS = 1e-4  # absolute slack on q (exp and multiply rounding, float32 1/255)
 SPAN_PX = 1e-3  # pixel slack on span end points
-# Columns of the span table.
-S_FULL, S_MX, S_MY, S_XR, S_YR = 0, 1, 2, 3, 4
-N_SPAN = 5
+# Columns of the span table: whether every row must be visited; the centre; the extents of the
+# widened ellipse q = a dx^2 + 2 b dx dy + c dy^2 <= lm (with the pixel slack); b, c, det and
+# c lm, and the dx of its topmost point, for the row range over a tile's columns.
+S_FULL, S_MX, S_MY, S_XR, S_YR, S_B, S_C, S_DET, S_CLM, S_XTOP = range(10)
+N_SPAN = 10
 PAIR_COST = 2.0  # load-balancing cost of a (tile, Gaussian) pair, in 16-pixel rows
 MAX_TILE_LIST = 1 << 24  # Gaussians per tile: slots are kept in float32 tile state
 
@@ -127,6 +130,7 @@ class Forward(NamedTuple):
     stop_slot: np.ndarray  # [H, W] int32, slot of the Gaussian that stopped the pixel (else list length)
     n_used: np.ndarray  # [n_tiles] int64, slots composited before every pixel of the tile stopped
     pair_live: np.ndarray  # [P] uint8, 1 where the sorted pair contributed to some pixel
+    pair_rows: np.ndarray  # [P, 2] int64, image rows [r0, r1) each sorted pair visits (``_row_range``)
     gauss_pairs: np.ndarray  # [P] int64, sorted pair index of each (Gaussian, tile), CSR by gauss_off
     tile_work: np.ndarray  # [n_tiles] float64, the backward pass's estimated work per tile
 
@@ -228,8 +232,14 @@ def bin_gaussians(
                 lim = 2.0 * math.log(np.float64(o) / np.float64(F_ALPHA_MIN))
                 lm = (lim + SPAN_ABS) / shrink
                 span[k, S_FULL] = 0.0
-                span[k, S_YR] = math.sqrt(a * lm / det) + SPAN_PX
+                y_extent = math.sqrt(a * lm / det)
+                span[k, S_YR] = y_extent + SPAN_PX
                 span[k, S_XR] = math.sqrt(c * lm / det) + SPAN_PX
+                span[k, S_B] = b
+                span[k, S_C] = c
+                span[k, S_DET] = det
+                span[k, S_CLM] = c * lm
+                span[k, S_XTOP] = -b * y_extent / a  # where a dx + b dy = 0 at dy = y_extent
                 cost[k] = PAIR_COST + min(TS, 2.0 * span[k, S_YR] + 1.0)
     offsets = np.zeros(n_tiles + 1, np.int64)
     gauss_off = np.zeros(n + 1, np.int64)  # CSR of each Gaussian's pairs, in tile order
@@ -293,14 +303,46 @@ def balance_tiles(tile_cost: np.ndarray, n_workers: int):
 
 
 @njit(**JIT)
-def _row_range(span: np.ndarray, g: int, y0: int, y1: int):
-    """Rows [r0, r1) of the tile rows [y0, y1) that may hold pixels of Gaussian g."""
+def _row_range(span: np.ndarray, g: int, x0: int, x1: int, y0: int, y1: int):
+    """Rows [r0, r1) of the tile rows [y0, y1) that may hold pixels of Gaussian g in the tile
+    columns [x0, x1): the rows the widened ellipse crosses within those columns (empty when it
+    misses them).
+
+    The ellipse cut by a band of columns is convex, so its rows are one interval: from the
+    lowest to the highest point of the ellipse over the band's pixel columns [cl, ch]. The
+    highest is the ellipse's top, at dx = x_top, when the band holds it, else the upper arc
+    y(dx) = (-b dx + sqrt(c lm - det dx^2)) / c at the band's end nearest x_top (the arc is
+    concave); the lowest mirrors it (bottom at -x_top). Rounding in these float64 steps is
+    orders of magnitude below the pixel slack added to both ends.
+    """
     if span[g, S_FULL] != 0.0:
         return y0, y1
+    mx = span[g, S_MX]
+    xr = span[g, S_XR]
+    cl = max(np.float64(x0), np.ceil(mx - xr))  # the band's pixel columns inside the x extent
+    ch = min(np.float64(x1 - 1), np.floor(mx + xr))
+    if ch < cl:
+        return 0, 0
+    da = cl - mx
+    db = ch - mx
+    b = span[g, S_B]
+    c = span[g, S_C]
+    det = span[g, S_DET]
+    clm = span[g, S_CLM]
+    xt = span[g, S_XTOP]
+    if da <= xt <= db:
+        up = span[g, S_YR]
+    else:
+        d = da if xt < da else db
+        up = (-b * d + math.sqrt(max(clm - det * d * d, 0.0))) / c + SPAN_PX
+    if da <= -xt <= db:
+        down = span[g, S_YR]
+    else:
+        d = da if -xt < da else db
+        down = (b * d + math.sqrt(max(clm - det * d * d, 0.0))) / c + SPAN_PX
     my = span[g, S_MY]
-    yr = span[g, S_YR]
-    r0 = max(np.float64(y0), np.ceil(my - yr))
-    r1 = min(np.float64(y1 - 1), np.floor(my + yr))
+    r0 = max(np.float64(y0), np.ceil(my - down))
+    r1 = min(np.float64(y1 - 1), np.floor(my + up))
     if r1 < r0:
         return 0, 0
     return np.int64(r0), np.int64(r1) + 1
@@ -319,16 +361,6 @@ def _column_blocks(span: np.ndarray, g: int, x0: int, rb: int):
     if hi < lo:
         return 0, 0
     return (np.int64(lo) - x0) // rb, (np.int64(hi) - x0) // rb + 1
-
-
-@njit(**JIT)
-def _misses_columns(span: np.ndarray, g: int, x0: int, x1: int) -> bool:
-    """Whether Gaussian g's ellipse lies outside the columns [x0, x1) altogether."""
-    if span[g, S_FULL] != 0.0:
-        return False
-    mx = span[g, S_MX]
-    xr = span[g, S_XR]
-    return max(np.float64(x0), np.ceil(mx - xr)) > min(np.float64(x1 - 1), np.floor(mx + xr))
 
 
 # ------------------------------------------------------------------------------ forward
@@ -430,7 +462,8 @@ def _sort_by_depth(ids, depth_keys):
 @njit(**_TILE_JIT)
 def _forward_tile(
     tile, means2d, conics, colors, opacities, depths, depth_keys, background, offsets, pair_gauss,
-    span, rect, gauss_off, gauss_pairs, n_used, pair_live, image, alpha_out, depth_out, t_final, stop_slot,
+    span, rect, gauss_off, gauss_pairs, n_used, pair_live, pair_rows, image, alpha_out, depth_out, t_final,
+    stop_slot,
 ):  # fmt: skip
     """Sort one tile's list by depth, composite it into the outputs and note where each of
     its pairs landed in ``gauss_pairs`` (per-Gaussian CSR) and whether it contributed.
@@ -467,15 +500,21 @@ def _forward_tile(
     active = (x1 - x0) * (y1 - y0)
     rows = 0.0
     used = count
+    # Every pair's rows first, in a loop of independent iterations: computed inside the
+    # compositing loop, this float64 maths would sit on its critical path for every pair.
     for i in range(count):
         pair_live[start + i] = 0
+        r0, r1 = _row_range(span, pair_gauss[start + i], x0, x1, y0, y1)
+        pair_rows[start + i, 0] = r0
+        pair_rows[start + i, 1] = r1
     for i in range(count):
         if active == 0:  # every pixel has stopped
             used = i
             break
         g = pair_gauss[start + i]
-        r0, r1 = _row_range(span, g, y0, y1)
-        if r1 <= r0 or _misses_columns(span, g, x0, x1):
+        r0 = pair_rows[start + i, 0]
+        r1 = pair_rows[start + i, 1]
+        if r1 <= r0:  # misses the tile's pixels
             continue
         lo = np.uint64((r0 - y0) * TS)
         hi = np.uint64((r1 - y0) * TS)
@@ -581,6 +620,7 @@ def render_forward(
     stop_slot = np.empty((height, width), np.int32)
     n_used = np.empty(n_tiles, np.int64)
     pair_live = np.empty(pair_gauss.shape[0], np.uint8)
+    pair_rows = np.empty((pair_gauss.shape[0], 2), np.int64)
     gauss_pairs = np.empty(pair_gauss.shape[0], np.int64)
     work = np.zeros(n_tiles, np.float64)
     for w in prange(worker_offsets.shape[0] - 1):
@@ -588,10 +628,10 @@ def render_forward(
             tile = worker_tiles[j]
             work[tile] = _forward_tile(
                 tile, means2d, conics, colors, opacities, depths, depth_keys, background, offsets,
-                pair_gauss, span, rect, gauss_off, gauss_pairs, n_used, pair_live, image, alpha, depth, t_final,
-                stop_slot,
+                pair_gauss, span, rect, gauss_off, gauss_pairs, n_used, pair_live, pair_rows, image, alpha, depth,
+                t_final, stop_slot,
             )  # fmt: skip
-    return Forward(image, alpha, depth, t_final, stop_slot, n_used, pair_live, gauss_pairs, work)
+    return Forward(image, alpha, depth, t_final, stop_slot, n_used, pair_live, pair_rows, gauss_pairs, work)
 
 
 # ----------------------------------------------------------------------------- backward
@@ -681,7 +721,7 @@ def _backward_block3(st, lanes, lo, hi, base, z, c0, c1, c2, mx, my, nh_a, nh_c,
 @njit(**_TILE_JIT)
 def _backward_tile(
     tile, means2d, conics, colors, opacities, depths, background, offsets, pair_gauss, span, n_used,
-    pair_live, t_final, stop_slot, grad_image, grad_alpha, grad_depth, pair_grads, bg_grads,
+    pair_live, pair_rows, t_final, stop_slot, grad_image, grad_alpha, grad_depth, pair_grads, bg_grads,
 ):  # fmt: skip
     """Walk one tile's list back to front; write its gradient rows and its background
     gradient.
@@ -733,7 +773,8 @@ def _backward_tile(
             pair_grads[start + i, :] = 0.0
             continue
         g = pair_gauss[start + i]
-        r0, r1 = _row_range(span, g, y0, y1)
+        r0 = pair_rows[start + i, 0]
+        r1 = pair_rows[start + i, 1]
         lo = np.uint64((r0 - y0) * TS)
         hi = np.uint64((r1 - y0) * TS)
         b0, b1 = _column_blocks(span, g, x0, RB)
@@ -817,6 +858,7 @@ def render_backward(
     span: np.ndarray,  # [N, 5] float64
     n_used: np.ndarray,  # [n_tiles] int64, from render_forward
     pair_live: np.ndarray,  # [P] uint8, from render_forward
+    pair_rows: np.ndarray,  # [P, 2] int64, from render_forward
     worker_offsets: np.ndarray,  # [W + 1] int64
     worker_tiles: np.ndarray,  # [n_tiles] int64
     t_final: np.ndarray,  # [H, W] float32
@@ -834,7 +876,7 @@ def render_backward(
         for j in range(worker_offsets[w], worker_offsets[w + 1]):
             _backward_tile(
                 worker_tiles[j], means2d, conics, colors, opacities, depths, background, offsets,
-                pair_gauss, span, n_used, pair_live, t_final, stop_slot, grad_image, grad_alpha, grad_depth,
+                pair_gauss, span, n_used, pair_live, pair_rows, t_final, stop_slot, grad_image, grad_alpha, grad_depth,
                 pair_grads, bg_grads,
             )  # fmt: skip
     return pair_grads, bg_grads

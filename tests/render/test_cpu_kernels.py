@@ -131,6 +131,41 @@ def test_column_blocks_hold_every_pixel_a_gaussian_can_reach(rb: int) -> None:
     assert reached <= visited < (len(b.pair_gauss) * k.TS // rb)
 
 
+@pytest.mark.parametrize("seed", [3, 4])
+def test_row_ranges_hold_every_pixel_a_gaussian_can_reach(seed: int) -> None:
+    """The rows a pair visits (``_row_range``: the rows its ellipse crosses within the tile's
+    columns) hold every pixel of the tile where alpha >= 1/255, computed in float64 from the
+    conic; and they are tighter than the ellipse's rows over the whole image width (what the
+    kernels visited before), which is the point of them."""
+    from ftgspp.render import cpu_kernels as k
+
+    s = make_scene(seed)
+    m, c, o = (s[n].detach().numpy() for n in ("means2d", "conics", "opacities"))
+    width, height = s["width"], s["height"]
+    b = k.bin_gaussians(m, c, o, s["radii"].numpy().astype(np.int64), width, height)
+    tiles_x = (width + k.TS - 1) // k.TS
+    visited = band_rows = reached = 0
+    for t in range(len(b.offsets) - 1):
+        x0, y0 = (t % tiles_x) * k.TS, (t // tiles_x) * k.TS
+        x1, y1 = min(x0 + k.TS, width), min(y0 + k.TS, height)
+        xs, ys = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1))
+        for g in b.pair_gauss[b.offsets[t]: b.offsets[t + 1]]:
+            dx, dy = xs - np.float64(m[g, 0]), ys - np.float64(m[g, 1])
+            a, bb, cc = np.float64(c[g])
+            alpha = o[g] * np.exp(-0.5 * (a * dx * dx + cc * dy * dy) - bb * dx * dy)
+            rows = np.unique(ys[alpha >= ALPHA_MIN])
+            r0, r1 = k._row_range(b.span, g, x0, x1, y0, y1)
+            assert np.all((rows >= r0) & (rows < r1)), (t, g, rows, r0, r1)
+            visited += max(r1 - r0, 0)
+            reached += len(rows)
+            if b.span[g, k.S_FULL]:
+                band_rows += y1 - y0
+            else:  # the rows of the ellipse over the whole image width, as before
+                my, yr = b.span[g, k.S_MY], b.span[g, k.S_YR]
+                band_rows += max(0, min(y1 - 1, np.floor(my + yr)) - max(y0, np.ceil(my - yr)) + 1)
+    assert reached <= visited < 0.9 * band_rows, (reached, visited, band_rows)
+
+
 def test_vector_lanes_follow_the_compile_target(monkeypatch: pytest.MonkeyPatch) -> None:
     import llvmlite.binding as ll
 
