@@ -43,6 +43,20 @@ def test_exp_clamped_is_within_one_ulp_of_exact_exp() -> None:
         assert 0 < cpu._k.exp_clamped(np.float32(below)) < ALPHA_MIN
 
 
+def test_kept_is_the_value_or_positive_zero_bit_for_bit() -> None:
+    """``_kept(x, keep)``, the kernels' branch-free ``x if keep else +0.0``, on the awkward
+    floats too (-0, infinities, NaN, subnormals): the same bits as the branch."""
+    from numba import njit
+
+    from ftgspp.render import cpu_kernels as k
+
+    kept = njit(lambda x, keep: k._kept(x, keep))
+    xs = np.array([1.5, -2.25, 0.0, -0.0, np.inf, -np.inf, np.nan, 1e-45, -3e-39, 3.4e38], np.float32)
+    for x in xs:
+        assert np.float32(kept(x, True)).tobytes() == x.tobytes()
+        assert np.float32(kept(x, False)).tobytes() == np.float32(0.0).tobytes()
+
+
 def test_balance_tiles_deals_every_tile_once() -> None:
     cost = np.array([5.0, 0.0, 9.0, 1.0, 9.0, 3.0, 2.0])
     for n_workers in (1, 2, 3, 8):
