@@ -787,6 +787,8 @@ def _backward_tile(
             st[_B_REST + p] = t * dot_bg - grad_alpha[py, px] * t
     n_terms = N_TERMS + n_dim
     lanes = np.empty(n_terms * TS, np.float32)
+    lanes64 = np.empty(n_terms * TS, np.float64)
+    lanes[:] = F0
     sums = np.empty(n_terms, np.float64)
     used = n_used[tile]
     for i in range(count - 1, used - 1, -1):  # composited after every pixel had stopped
@@ -811,7 +813,6 @@ def _backward_tile(
         f_slot = np.float32(i)
         j0 = b0 * RB  # the columns visited; the others would only add zeros
         j1 = b1 * RB
-        lanes[:] = F0
         if n_dim == 3:
             c0 = colors[g, 0]
             c1 = colors[g, 1]
@@ -847,10 +848,15 @@ def _backward_tile(
                             j = base + k
                             w = st[_B_DOT + q + j]
                             lanes[lane + j] += st[gch + q + j] * w if w > F0 else F0
+        # widened in one vectorised pass (exact), then summed in column order: the same sums
+        # as widening each term in the loop, without one scalar conversion per term
+        for q in range(n_terms * TS):
+            lanes64[q] = np.float64(lanes[q])
+            lanes[q] = F0  # for the next pair
         for k in range(n_terms):
             s = 0.0
             for j in range(j0, j1):
-                s += np.float64(lanes[k * TS + j])
+                s += lanes64[k * TS + j]
             sums[k] = s
         out = pair_grads[start + i]
         # power = -0.5 (a dx^2 + c dy^2) - b dx dy, dx = px - mx, dy = py - my
