@@ -130,7 +130,8 @@ class Forward(NamedTuple):
     stop_slot: np.ndarray  # [H, W] int32, slot of the Gaussian that stopped the pixel (else list length)
     n_used: np.ndarray  # [n_tiles] int64, slots composited before every pixel of the tile stopped
     pair_live: np.ndarray  # [P] uint8, 1 where the sorted pair contributed to some pixel
-    pair_rows: np.ndarray  # [P, 2] int64, image rows [r0, r1) each sorted pair visits (``_row_range``)
+    pair_box: np.ndarray  # [P, 4] int64, each sorted pair's image rows [r0, r1) (``_row_range``) and
+    # blocks of RB columns [b0, b1) (``_column_blocks``) that it visits
     gauss_pairs: np.ndarray  # [P] int64, sorted pair index of each (Gaussian, tile), CSR by gauss_off
     tile_work: np.ndarray  # [n_tiles] float64, the backward pass's estimated work per tile
 
@@ -485,7 +486,7 @@ def _sort_by_depth(ids, depth_keys):
 @njit(**_TILE_JIT)
 def _forward_tile(
     tile, means2d, conics, colors, opacities, depths, depth_keys, background, offsets, pair_gauss,
-    span, rect, gauss_off, gauss_pairs, n_used, pair_live, pair_rows, image, alpha_out, depth_out, t_final,
+    span, rect, gauss_off, gauss_pairs, n_used, pair_live, pair_box, image, alpha_out, depth_out, t_final,
     stop_slot,
 ):  # fmt: skip
     """Sort one tile's list by depth, composite it into the outputs and note where each of
@@ -523,25 +524,34 @@ def _forward_tile(
     active = (x1 - x0) * (y1 - y0)
     rows = 0.0
     used = count
-    # Every pair's rows first, in a loop of independent iterations: computed inside the
-    # compositing loop, this float64 maths would sit on its critical path for every pair.
+    # Every pair's rows and column blocks first, in a loop of independent iterations: computed
+    # inside the compositing loops (here and in the backward pass), this float64 maths would sit
+    # on their critical path for every pair.
     for i in range(count):
         pair_live[start + i] = 0
-        r0, r1 = _row_range(span, pair_gauss[start + i], x0, x1, y0, y1)
-        pair_rows[start + i, 0] = r0
-        pair_rows[start + i, 1] = r1
+        g = pair_gauss[start + i]
+        r0, r1 = _row_range(span, g, x0, x1, y0, y1)
+        if RB == TS:  # one block, which the rows reach when there are any
+            b0, b1 = 0, 1
+        else:
+            b0, b1 = _column_blocks(span, g, x0, RB)
+        pair_box[start + i, 0] = r0
+        pair_box[start + i, 1] = r1
+        pair_box[start + i, 2] = b0
+        pair_box[start + i, 3] = b1
     for i in range(count):
         if active == 0:  # every pixel has stopped
             used = i
             break
         g = pair_gauss[start + i]
-        r0 = pair_rows[start + i, 0]
-        r1 = pair_rows[start + i, 1]
+        r0 = pair_box[start + i, 0]
+        r1 = pair_box[start + i, 1]
         if r1 <= r0:  # misses the tile's pixels
             continue
         lo = np.uint64((r0 - y0) * TS)
         hi = np.uint64((r1 - y0) * TS)
-        b0, b1 = _column_blocks(span, g, x0, RB)
+        b0 = pair_box[start + i, 2]
+        b1 = pair_box[start + i, 3]
         mx = means2d[g, 0]
         my = means2d[g, 1]
         nh_a = -F_HALF * conics[g, 0]
@@ -643,7 +653,7 @@ def render_forward(
     stop_slot = np.empty((height, width), np.int32)
     n_used = np.empty(n_tiles, np.int64)
     pair_live = np.empty(pair_gauss.shape[0], np.uint8)
-    pair_rows = np.empty((pair_gauss.shape[0], 2), np.int64)
+    pair_box = np.empty((pair_gauss.shape[0], 4), np.int64)
     gauss_pairs = np.empty(pair_gauss.shape[0], np.int64)
     work = np.zeros(n_tiles, np.float64)
     for w in prange(worker_offsets.shape[0] - 1):
@@ -651,10 +661,10 @@ def render_forward(
             tile = worker_tiles[j]
             work[tile] = _forward_tile(
                 tile, means2d, conics, colors, opacities, depths, depth_keys, background, offsets,
-                pair_gauss, span, rect, gauss_off, gauss_pairs, n_used, pair_live, pair_rows, image, alpha, depth,
+                pair_gauss, span, rect, gauss_off, gauss_pairs, n_used, pair_live, pair_box, image, alpha, depth,
                 t_final, stop_slot,
             )  # fmt: skip
-    return Forward(image, alpha, depth, t_final, stop_slot, n_used, pair_live, pair_rows, gauss_pairs, work)
+    return Forward(image, alpha, depth, t_final, stop_slot, n_used, pair_live, pair_box, gauss_pairs, work)
 
 
 # ----------------------------------------------------------------------------- backward
@@ -744,7 +754,7 @@ def _backward_block3(st, lanes, lo, hi, base, z, c0, c1, c2, mx, my, nh_a, nh_c,
 @njit(**_TILE_JIT)
 def _backward_tile(
     tile, means2d, conics, colors, opacities, depths, background, offsets, pair_gauss, span, n_used,
-    pair_live, pair_rows, t_final, stop_slot, grad_image, grad_alpha, grad_depth, pair_grads, bg_grads,
+    pair_live, pair_box, t_final, stop_slot, grad_image, grad_alpha, grad_depth, pair_grads, bg_grads,
 ):  # fmt: skip
     """Walk one tile's list back to front; write its gradient rows and its background
     gradient.
@@ -754,7 +764,8 @@ def _backward_tile(
     rest_i = sum_{j > i} w_j <g, f_j> + T_final (<g_image, background> - g_alpha).
     T_i is recovered from T_final as T_{i+1} / (1 - alpha_i). A Gaussian's per-pixel terms
     are summed per pixel column over its rows (float32, at most 16 terms), then over the
-    visited columns in float64 (the others hold zeros: skipping them keeps the bits).
+    tile's columns in order in float64 (a column it does not visit holds +0.0, and adding +0.0
+    to a sum that starts at +0.0 changes no bit).
     """
     height, width = t_final.shape
     n_dim = colors.shape[1]
@@ -798,11 +809,15 @@ def _backward_tile(
             pair_grads[start + i, :] = 0.0
             continue
         g = pair_gauss[start + i]
-        r0 = pair_rows[start + i, 0]
-        r1 = pair_rows[start + i, 1]
+        r0 = pair_box[start + i, 0]
+        r1 = pair_box[start + i, 1]
         lo = np.uint64((r0 - y0) * TS)
         hi = np.uint64((r1 - y0) * TS)
-        b0, b1 = _column_blocks(span, g, x0, RB)
+        if RB == TS:  # constants: the column loops below compile to fixed 16-column code
+            b0, b1 = 0, 1
+        else:
+            b0 = pair_box[start + i, 2]
+            b1 = pair_box[start + i, 3]
         mx = means2d[g, 0]
         my = means2d[g, 1]
         nh_a = -F_HALF * conics[g, 0]
@@ -811,8 +826,6 @@ def _backward_tile(
         op = opacities[g]
         z = depths[g]
         f_slot = np.float32(i)
-        j0 = b0 * RB  # the columns visited; the others would only add zeros
-        j1 = b1 * RB
         if n_dim == 3:
             c0 = colors[g, 0]
             c1 = colors[g, 1]
@@ -855,7 +868,7 @@ def _backward_tile(
             lanes[q] = F0  # for the next pair
         for k in range(n_terms):
             s = 0.0
-            for j in range(j0, j1):
+            for j in range(TS):  # all columns, a fixed count: unvisited ones hold +0, a no-op here
                 s += lanes64[k * TS + j]
             sums[k] = s
         out = pair_grads[start + i]
@@ -887,7 +900,7 @@ def render_backward(
     span: np.ndarray,  # [N, 5] float64
     n_used: np.ndarray,  # [n_tiles] int64, from render_forward
     pair_live: np.ndarray,  # [P] uint8, from render_forward
-    pair_rows: np.ndarray,  # [P, 2] int64, from render_forward
+    pair_box: np.ndarray,  # [P, 4] int64, from render_forward
     worker_offsets: np.ndarray,  # [W + 1] int64
     worker_tiles: np.ndarray,  # [n_tiles] int64
     t_final: np.ndarray,  # [H, W] float32
@@ -905,7 +918,7 @@ def render_backward(
         for j in range(worker_offsets[w], worker_offsets[w + 1]):
             _backward_tile(
                 worker_tiles[j], means2d, conics, colors, opacities, depths, background, offsets,
-                pair_gauss, span, n_used, pair_live, pair_rows, t_final, stop_slot, grad_image, grad_alpha, grad_depth,
+                pair_gauss, span, n_used, pair_live, pair_box, t_final, stop_slot, grad_image, grad_alpha, grad_depth,
                 pair_grads, bg_grads,
             )  # fmt: skip
     return pair_grads, bg_grads
