@@ -107,7 +107,7 @@ class _RasterizeCPU(torch.autograd.Function):
 
         workers = _k.balance_tiles(fwd.tile_work, numba.get_num_threads())
         pair_grads, bg_grads = _k.render_backward(
-            m2d, con, col, opa, dep, bg, binning.offsets, binning.pair_gauss, binning.span, fwd.n_used,
+            m2d, con, col, opa, dep, bg, binning.offsets, binning.pair_gauss, fwd.n_used,
             fwd.pair_live, fwd.pair_box, *workers, fwd.t_final, fwd.stop_slot,
             cotangent(grad_image, (height, width, n_dim)), cotangent(grad_alpha, (height, width)),
             cotangent(grad_depth, (height, width)),

@@ -114,7 +114,7 @@ class Binning(NamedTuple):
 
     offsets: np.ndarray  # [n_tiles + 1] int64, each tile's range in pair_gauss
     pair_gauss: np.ndarray  # [P] int32, Gaussian of each (tile, Gaussian) pair, grouped by tile
-    span: np.ndarray  # [N, 5] float64, span table (columns S_*)
+    span: np.ndarray  # [N, N_SPAN] float64, span table (columns S_*)
     tile_cost: np.ndarray  # [n_tiles] float64, estimated work in 16-pixel rows (load balancing)
     rect: np.ndarray  # [N, 4] int64, tile range tx0, tx1, ty0, ty1 (empty when culled)
     gauss_off: np.ndarray  # [N + 1] int64, offsets of each Gaussian's pairs (raster tile order)
@@ -131,7 +131,7 @@ class Forward(NamedTuple):
     n_used: np.ndarray  # [n_tiles] int64, slots composited before every pixel of the tile stopped
     pair_live: np.ndarray  # [P] uint8, 1 where the sorted pair contributed to some pixel
     pair_box: np.ndarray  # [P, 4] int64, each sorted pair's image rows [r0, r1) (``_row_range``) and
-    # blocks of RB columns [b0, b1) (``_column_blocks``) that it visits
+    # blocks of RB columns [b0, b1) (``_column_blocks``; (0, 1) when RB = 16) that it visits
     gauss_pairs: np.ndarray  # [P] int64, sorted pair index of each (Gaussian, tile), CSR by gauss_off
     tile_work: np.ndarray  # [n_tiles] float64, the backward pass's estimated work per tile
 
@@ -635,7 +635,7 @@ def render_forward(
     background: np.ndarray,  # [D] float32
     offsets: np.ndarray,  # [n_tiles + 1] int64
     pair_gauss: np.ndarray,  # [P] int32, index order per tile (bin_gaussians'); sorted in place by (depth, index)
-    span: np.ndarray,  # [N, 5] float64
+    span: np.ndarray,  # [N, N_SPAN] float64
     rect: np.ndarray,  # [N, 4] int64
     gauss_off: np.ndarray,  # [N + 1] int64
     worker_offsets: np.ndarray,  # [W + 1] int64
@@ -753,7 +753,7 @@ def _backward_block3(st, lanes, lo, hi, base, z, c0, c1, c2, mx, my, nh_a, nh_c,
 
 @njit(**_TILE_JIT)
 def _backward_tile(
-    tile, means2d, conics, colors, opacities, depths, background, offsets, pair_gauss, span, n_used,
+    tile, means2d, conics, colors, opacities, depths, background, offsets, pair_gauss, n_used,
     pair_live, pair_box, t_final, stop_slot, grad_image, grad_alpha, grad_depth, pair_grads, bg_grads,
 ):  # fmt: skip
     """Walk one tile's list back to front; write its gradient rows and its background
@@ -897,7 +897,6 @@ def render_backward(
     background: np.ndarray,  # [D] float32
     offsets: np.ndarray,  # [n_tiles + 1] int64
     pair_gauss: np.ndarray,  # [P] int32, as sorted by render_forward
-    span: np.ndarray,  # [N, 5] float64
     n_used: np.ndarray,  # [n_tiles] int64, from render_forward
     pair_live: np.ndarray,  # [P] uint8, from render_forward
     pair_box: np.ndarray,  # [P, 4] int64, from render_forward
@@ -918,7 +917,7 @@ def render_backward(
         for j in range(worker_offsets[w], worker_offsets[w + 1]):
             _backward_tile(
                 worker_tiles[j], means2d, conics, colors, opacities, depths, background, offsets,
-                pair_gauss, span, n_used, pair_live, pair_box, t_final, stop_slot, grad_image, grad_alpha, grad_depth,
+                pair_gauss, n_used, pair_live, pair_box, t_final, stop_slot, grad_image, grad_alpha, grad_depth,
                 pair_grads, bg_grads,
             )  # fmt: skip
     return pair_grads, bg_grads
