@@ -387,6 +387,16 @@ def _column_blocks(span: np.ndarray, g: int, x0: int, rb: int):
     return (np.int64(lo) - x0) // rb, (np.int64(hi) - x0) // rb + 1
 
 
+@njit(inline="always", **JIT)
+def _pair_blocks(pair_box: np.ndarray, q: int):
+    """Column blocks [b0, b1) of sorted pair ``q`` (``Forward.pair_box``): with 16 lanes the
+    constants (0, 1), one block, which every pair with rows reaches, so that the column loops
+    compile to fixed 16-column code; otherwise the table's."""
+    if RB == TS:
+        return 0, 1
+    return pair_box[q, 2], pair_box[q, 3]
+
+
 # ------------------------------------------------------------------------------ forward
 
 # Rows of a tile's float32 state in the forward pass: one flat array, offsets known at
@@ -550,8 +560,7 @@ def _forward_tile(
             continue
         lo = np.uint64((r0 - y0) * TS)
         hi = np.uint64((r1 - y0) * TS)
-        b0 = pair_box[start + i, 2]
-        b1 = pair_box[start + i, 3]
+        b0, b1 = _pair_blocks(pair_box, start + i)
         mx = means2d[g, 0]
         my = means2d[g, 1]
         nh_a = -F_HALF * conics[g, 0]
@@ -813,11 +822,7 @@ def _backward_tile(
         r1 = pair_box[start + i, 1]
         lo = np.uint64((r0 - y0) * TS)
         hi = np.uint64((r1 - y0) * TS)
-        if RB == TS:  # constants: the column loops below compile to fixed 16-column code
-            b0, b1 = 0, 1
-        else:
-            b0 = pair_box[start + i, 2]
-            b1 = pair_box[start + i, 3]
+        b0, b1 = _pair_blocks(pair_box, start + i)
         mx = means2d[g, 0]
         my = means2d[g, 1]
         nh_a = -F_HALF * conics[g, 0]
