@@ -21,7 +21,6 @@ Float literals are ``np.float32`` constants: a Python float would promote the ma
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -54,36 +53,7 @@ CAM_LOX, CAM_HIX, CAM_LOY, CAM_HIY = 8, 9, 10, 11  # clamp limits of x/z and y/z
 N_CAM = 12
 
 
-BLOCK = 256  # Gaussians per parallel work item (each item allocates its scratch once)
-
-
-class Scratch(NamedTuple):
-    """Small per-work-item buffers (float32)."""
-
-    R: np.ndarray  # [3, 3]
-    scale: np.ndarray  # [3]
-    cov3: np.ndarray  # [3, 3]
-    cov_cam: np.ndarray  # [3, 3]
-    jac: np.ndarray  # [2, 3]
-    tmp: np.ndarray  # [3, 3]
-    t2: np.ndarray  # [2, 3]
-    basis: np.ndarray  # [16]
-    g_basis: np.ndarray  # [16]
-    gj: np.ndarray  # [2, 3]
-    g_cam: np.ndarray  # [3, 3]
-    gJ: np.ndarray  # [2, 3]
-    g3: np.ndarray  # [3, 3]
-    gR: np.ndarray  # [3, 3]
-
-
-@njit(**JIT)
-def _scratch():
-    f = np.float32
-    return Scratch(
-        np.empty((3, 3), f), np.empty(3, f), np.empty((3, 3), f), np.empty((3, 3), f), np.empty((2, 3), f),
-        np.empty((3, 3), f), np.empty((2, 3), f), np.empty(16, f), np.empty(16, f), np.empty((2, 3), f),
-        np.empty((3, 3), f), np.empty((2, 3), f), np.empty((3, 3), f), np.empty((3, 3), f),
-    )  # fmt: skip
+BLOCK = 256  # Gaussians per parallel work item (each item allocates its SH basis buffers once)
 
 
 @njit(**JIT)
@@ -188,29 +158,56 @@ def _normalise_grad(ux, uy, uz, n, eps, gx, gy, gz):
     return gx / n, gy / n, gz / n
 
 
-@njit(**JIT)
-def _rotation(qw, qx, qy, qz, R):
-    """Rotation matrix of the normalised quaternion (project.py's formula) into R [3, 3]."""
-    R[0, 0] = F1 - F2 * (qy * qy + qz * qz)
-    R[0, 1] = F2 * (qx * qy - qw * qz)
-    R[0, 2] = F2 * (qx * qz + qw * qy)
-    R[1, 0] = F2 * (qx * qy + qw * qz)
-    R[1, 1] = F1 - F2 * (qx * qx + qz * qz)
-    R[1, 2] = F2 * (qy * qz - qw * qx)
-    R[2, 0] = F2 * (qx * qz - qw * qy)
-    R[2, 1] = F2 * (qy * qz + qw * qx)
-    R[2, 2] = F1 - F2 * (qx * qx + qy * qy)
+@njit(inline="always", **JIT)
+def _rotation(qw, qx, qy, qz):
+    """Rotation matrix of the normalised quaternion (project.py's formula), row-major 9-tuple."""
+    return (
+        F1 - F2 * (qy * qy + qz * qz), F2 * (qx * qy - qw * qz), F2 * (qx * qz + qw * qy),
+        F2 * (qx * qy + qw * qz), F1 - F2 * (qx * qx + qz * qz), F2 * (qy * qz - qw * qx),
+        F2 * (qx * qz - qw * qy), F2 * (qy * qz + qw * qx), F1 - F2 * (qx * qx + qy * qy),
+    )  # fmt: skip
 
 
 @njit(inline="always", **JIT)
-def _mul3(A, B, out, a_t, b_t):
-    """out = op(A) op(B) over the leading 3x3 blocks, op = transpose where a_t / b_t."""
-    for r in range(3):
-        for c in range(3):
-            acc = F0
-            for k in range(3):
-                acc += (A[k, r] if a_t else A[r, k]) * (B[c, k] if b_t else B[k, c])
-            out[r, c] = acc
+def _dot3(A, B, r, c, a_t, b_t):
+    """Entry (r, c) of op(A) op(B) for row-major 3x3 9-tuples, op = transpose where a_t / b_t.
+
+    Summed from +0 in k order, as the earlier array version did, so that results keep their
+    bits (the +0 start turns a first product of -0 into +0)."""
+    acc = F0
+    for k in range(3):
+        acc += A[3 * k + r if a_t else 3 * r + k] * B[3 * c + k if b_t else 3 * k + c]
+    return acc
+
+
+@njit(inline="always", **JIT)
+def _mul3(A, B, a_t, b_t):
+    """op(A) op(B) of row-major 3x3 9-tuples as a 9-tuple (entries by ``_dot3``).
+
+    Matrices are tuples of scalars, not small arrays, so that they stay in registers."""
+    return (
+        _dot3(A, B, 0, 0, a_t, b_t), _dot3(A, B, 0, 1, a_t, b_t), _dot3(A, B, 0, 2, a_t, b_t),
+        _dot3(A, B, 1, 0, a_t, b_t), _dot3(A, B, 1, 1, a_t, b_t), _dot3(A, B, 1, 2, a_t, b_t),
+        _dot3(A, B, 2, 0, a_t, b_t), _dot3(A, B, 2, 1, a_t, b_t), _dot3(A, B, 2, 2, a_t, b_t),
+    )  # fmt: skip
+
+
+@njit(inline="always", **JIT)
+def _sym_dot(G, M, r, k):
+    """Entry (r, k) of (G + G^T) M for row-major 3x3 9-tuples, each (G + G^T) entry added as
+    G[r, c] + G[c, r], summed from +0 in c order."""
+    acc = F0
+    for c in range(3):
+        acc += (G[3 * r + c] + G[3 * c + r]) * M[3 * c + k]
+    return acc
+
+
+@njit(inline="always", **JIT)
+def _linear(view):
+    """The rotation block W of a world-to-camera matrix [4, 4] as a row-major 9-tuple."""
+    return (
+        view[0, 0], view[0, 1], view[0, 2], view[1, 0], view[1, 1], view[1, 2], view[2, 0], view[2, 1], view[2, 2],
+    )  # fmt: skip
 
 
 @njit(inline="always", **JIT)
@@ -219,14 +216,15 @@ def _in_front(pz, cam):
     return pz >= cam[CAM_NEAR] and pz <= F_FAR
 
 
-@njit(inline="always", **JIT)
-def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, cam, S):
+@njit(**JIT)  # not inlined into the parallel loops: their array analysis mistakes tuples for shapes
+def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, W, cam):
     """Camera-space centre, clamped tangents, Jacobian and 2D covariance of Gaussian i.
 
-    Fills the scratch ``S`` (R: rotation of the normalised quaternion, scale, cov3 (world),
-    cov_cam, jac [2, 3]); returns (px, py, pz, z_safe, u, v, u_c, v_c, a, b, c, qnorm).
+    ``W`` is ``_linear(view)``. Returns (px, py, pz, z_safe, u, v, u_c, v_c, a, b, c, qnorm,
+    R, scale, cov_cam, jac): R (rotation of the normalised quaternion) and cov_cam as row-major
+    9-tuples, scale as a 3-tuple, jac as its non-zero entries (J00, J02, J11, J12) of
+    J = [[J00, 0, J02], [0, J11, J12]].
     """
-    R, scale, cov3, cov_cam, jac, tmp, t2 = S.R, S.scale, S.cov3, S.cov_cam, S.jac, S.tmp, S.t2
     px = view[0, 0] * mean_x + view[0, 1] * mean_y + view[0, 2] * mean_z + view[0, 3]
     py = view[1, 0] * mean_x + view[1, 1] * mean_y + view[1, 2] * mean_z + view[1, 3]
     pz = view[2, 0] * mean_x + view[2, 1] * mean_y + view[2, 2] * mean_z + view[2, 3]
@@ -237,37 +235,34 @@ def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, cam, S):
     v_c = min(max(v, cam[CAM_LOY]), cam[CAM_HIY])
     fx = cam[CAM_FX]
     fy = cam[CAM_FY]
-    jac[0, 0] = fx / z
-    jac[0, 1] = F0
-    jac[0, 2] = -fx * u_c / z
-    jac[1, 0] = F0
-    jac[1, 1] = fy / z
-    jac[1, 2] = -fy * v_c / z
+    j00 = fx / z
+    j02 = -fx * u_c / z
+    j11 = fy / z
+    j12 = -fy * v_c / z
     qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
     qn = np.float32(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz))
-    _rotation(qw / qn, qx / qn, qy / qn, qz / qn, R)
-    for k in range(3):
-        scale[k] = np.float32(math.exp(log_scales[i, k]))
-    for r in range(3):  # cov3 = (R S)(R S)^T
-        for c in range(3):
-            acc = F0
-            for k in range(3):
-                acc += (R[r, k] * scale[k]) * (R[c, k] * scale[k])
-            cov3[r, c] = acc
-    _mul3(view, cov3, tmp, False, False)  # cov_cam = W cov3 W^T
-    _mul3(tmp, view, cov_cam, False, True)
-    # t2 = J cov_cam
-    for r in range(2):
-        for c in range(3):
-            t2[r, c] = jac[r, 0] * cov_cam[0, c] + jac[r, 1] * cov_cam[1, c] + jac[r, 2] * cov_cam[2, c]
-    c00 = t2[0, 0] * jac[0, 0] + t2[0, 1] * jac[0, 1] + t2[0, 2] * jac[0, 2]
-    c01 = t2[0, 0] * jac[1, 0] + t2[0, 1] * jac[1, 1] + t2[0, 2] * jac[1, 2]
-    c10 = t2[1, 0] * jac[0, 0] + t2[1, 1] * jac[0, 1] + t2[1, 2] * jac[0, 2]
-    c11 = t2[1, 0] * jac[1, 0] + t2[1, 1] * jac[1, 1] + t2[1, 2] * jac[1, 2]
+    R = _rotation(qw / qn, qx / qn, qy / qn, qz / qn)
+    s0 = np.float32(math.exp(log_scales[i, 0]))
+    s1 = np.float32(math.exp(log_scales[i, 1]))
+    s2 = np.float32(math.exp(log_scales[i, 2]))
+    M = (R[0] * s0, R[1] * s1, R[2] * s2, R[3] * s0, R[4] * s1, R[5] * s2, R[6] * s0, R[7] * s1, R[8] * s2)
+    cov3 = _mul3(M, M, False, True)  # (R S)(R S)^T
+    cov_cam = _mul3(_mul3(W, cov3, False, False), W, False, True)  # W cov3 W^T
+    # t = J cov_cam (J's zeros multiplied as written: 0 * inf is nan)
+    t00 = j00 * cov_cam[0] + F0 * cov_cam[3] + j02 * cov_cam[6]
+    t01 = j00 * cov_cam[1] + F0 * cov_cam[4] + j02 * cov_cam[7]
+    t02 = j00 * cov_cam[2] + F0 * cov_cam[5] + j02 * cov_cam[8]
+    t10 = F0 * cov_cam[0] + j11 * cov_cam[3] + j12 * cov_cam[6]
+    t11 = F0 * cov_cam[1] + j11 * cov_cam[4] + j12 * cov_cam[7]
+    t12 = F0 * cov_cam[2] + j11 * cov_cam[5] + j12 * cov_cam[8]
+    c00 = t00 * j00 + t01 * F0 + t02 * j02
+    c01 = t00 * F0 + t01 * j11 + t02 * j12
+    c10 = t10 * j00 + t11 * F0 + t12 * j02
+    c11 = t10 * F0 + t11 * j11 + t12 * j12
     a = c00 + cam[CAM_EPS2D]
     b = F_HALF * (c01 + c10)
     c = c11 + cam[CAM_EPS2D]
-    return px, py, pz, z, u, v, u_c, v_c, a, b, c, qn
+    return px, py, pz, z, u, v, u_c, v_c, a, b, c, qn, R, (s0, s1, s2), cov_cam, (j00, j02, j11, j12)
 
 
 @njit(parallel=True, **JIT)
@@ -303,9 +298,9 @@ def prepare_forward(
     radii = np.empty((n, 2), np.int32)
     phis = np.empty(n, np.float32)
     means_t = np.empty((n, 3), np.float32)
+    W = _linear(view)
     for blk in prange((n + BLOCK - 1) // BLOCK):
-        S = _scratch()
-        basis = S.basis
+        basis = np.empty(16, np.float32)
         for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
             n_dim = sh0.shape[2]
             width = cam[CAM_W]
@@ -331,7 +326,9 @@ def prepare_forward(
                     rgb += basis[k] * shN[i, k - 1, ch]
                 colors[i, ch] = max(rgb + F_HALF, F0)
             # projection
-            px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn = _geometry(i, mx, my, mz, log_scales, quats, view, cam, S)
+            px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn, _r, _s, _cov, _jac = _geometry(
+                i, mx, my, mz, log_scales, quats, view, W, cam
+            )
             depths[i] = pz
             m2x = cam[CAM_FX] * u + cam[CAM_CX]
             m2y = cam[CAM_FY] * v + cam[CAM_CY]
@@ -409,10 +406,10 @@ def prepare_backward(
     gr_gate = np.zeros(n, np.float32)
     gr_sh0 = np.empty(sh0.shape, np.float32)
     gr_shN = np.zeros(shN.shape, np.float32)
+    W = _linear(view)
     for blk in prange((n + BLOCK - 1) // BLOCK):
-        S = _scratch()
-        R, scale, cov_cam, jac, basis, g_basis = S.R, S.scale, S.cov_cam, S.jac, S.basis, S.g_basis
-        gj, g_cam, gJ, tmp, g3, gR = S.gj, S.g_cam, S.gJ, S.tmp, S.g3, S.gR
+        basis = np.empty(16, np.float32)
+        g_basis = np.empty(16, np.float32)
         for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
             n_dim = sh0.shape[2]
             n_bases = (sh_degree + 1) * (sh_degree + 1)
@@ -429,7 +426,9 @@ def prepare_backward(
             gmz = g_means_t[i, 2]
 
             # --- projection. Camera-space cotangent g_p, starting with the depth output.
-            px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn = _geometry(i, mx, my, mz, log_scales, quats, view, cam, S)
+            px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn, R, scale, cov_cam, jac = _geometry(
+                i, mx, my, mz, log_scales, quats, view, W, cam
+            )
             for k in range(16):
                 g_basis[k] = F0
             gpx = F0
@@ -446,49 +445,55 @@ def prepare_backward(
                 # cov2d = J C J^T with a = cov00 + eps, b = (cov01 + cov10) / 2, c = cov11 + eps:
                 # G = [[ga, gb/2], [gb/2, gc]], dL/dC = J^T G J, dL/dJ = 2 G J C.
                 g00, g01, g11 = ga, F_HALF * gb, gc
-                for c in range(3):
-                    gj[0, c] = g00 * jac[0, c] + g01 * jac[1, c]
-                    gj[1, c] = g01 * jac[0, c] + g11 * jac[1, c]
-                for r in range(3):
-                    for c in range(3):
-                        g_cam[r, c] = jac[0, r] * gj[0, c] + jac[1, r] * gj[1, c]
-                for r in range(2):
-                    for c in range(3):
-                        gJ[r, c] = F2 * (gj[r, 0] * cov_cam[0, c] + gj[r, 1] * cov_cam[1, c] + gj[r, 2] * cov_cam[2, c])
+                j00, j02, j11, j12 = jac  # J = [[j00, 0, j02], [0, j11, j12]]; its zeros multiplied as written
+                gj00, gj01, gj02 = g00 * j00 + g01 * F0, g00 * F0 + g01 * j11, g00 * j02 + g01 * j12  # G J
+                gj10, gj11, gj12 = g01 * j00 + g11 * F0, g01 * F0 + g11 * j11, g01 * j02 + g11 * j12
+                g_cam = (  # J^T (G J)
+                    j00 * gj00 + F0 * gj10, j00 * gj01 + F0 * gj11, j00 * gj02 + F0 * gj12,
+                    F0 * gj00 + j11 * gj10, F0 * gj01 + j11 * gj11, F0 * gj02 + j11 * gj12,
+                    j02 * gj00 + j12 * gj10, j02 * gj01 + j12 * gj11, j02 * gj02 + j12 * gj12,
+                )  # fmt: skip
+                # dL/dJ = 2 (G J) C: the entries at J's non-zeros
+                gJ00 = F2 * (gj00 * cov_cam[0] + gj01 * cov_cam[3] + gj02 * cov_cam[6])
+                gJ02 = F2 * (gj00 * cov_cam[2] + gj01 * cov_cam[5] + gj02 * cov_cam[8])
+                gJ11 = F2 * (gj10 * cov_cam[1] + gj11 * cov_cam[4] + gj12 * cov_cam[7])
+                gJ12 = F2 * (gj10 * cov_cam[2] + gj11 * cov_cam[5] + gj12 * cov_cam[8])
                 # J = [[fx/z, 0, -fx u_c/z], [0, fy/z, -fy v_c/z]]
                 iz = F1 / z
-                gpz += (-gJ[0, 0] * fx + gJ[0, 2] * fx * u_c - gJ[1, 1] * fy + gJ[1, 2] * fy * v_c) * iz * iz
+                gpz += (-gJ00 * fx + gJ02 * fx * u_c - gJ11 * fy + gJ12 * fy * v_c) * iz * iz
                 gu = g_means2d[i, 0] * fx
                 gv_ = g_means2d[i, 1] * fy
                 if cam[CAM_LOX] <= u <= cam[CAM_HIX]:  # clamp passes the gradient inside its range
-                    gu += -gJ[0, 2] * fx * iz
+                    gu += -gJ02 * fx * iz
                 if cam[CAM_LOY] <= v <= cam[CAM_HIY]:
-                    gv_ += -gJ[1, 2] * fy * iz
+                    gv_ += -gJ12 * fy * iz
                 # u = x / z, v = y / z
                 gpx += gu * iz
                 gpy += gv_ * iz
                 gpz += -(gu * u + gv_ * v) * iz
                 # cov_cam = W cov3 W^T  ->  dL/dcov3 = W^T g_cam W
-                _mul3(view, g_cam, tmp, True, False)
-                _mul3(tmp, view, g3, False, False)
+                g3 = _mul3(_mul3(W, g_cam, True, False), W, False, False)
                 # cov3 = M M^T, M = R S  ->  dL/dM = (g3 + g3^T) M; dR_rk = dM_rk s_k; ds_k = sum_r dM_rk R_rk
-                for k in range(3):
-                    gs = F0
-                    for r in range(3):
-                        gm = F0
-                        for c in range(3):
-                            gm += (g3[r, c] + g3[c, r]) * (R[c, k] * scale[k])
-                        gR[r, k] = gm * scale[k]
-                        gs += gm * R[r, k]
-                    gr_ls[i, k] = gs * scale[k]  # s = exp(log s)
+                s0, s1, s2 = scale
+                M = (R[0] * s0, R[1] * s1, R[2] * s2, R[3] * s0, R[4] * s1, R[5] * s2, R[6] * s0, R[7] * s1, R[8] * s2)
+                gM = (
+                    _sym_dot(g3, M, 0, 0), _sym_dot(g3, M, 0, 1), _sym_dot(g3, M, 0, 2),
+                    _sym_dot(g3, M, 1, 0), _sym_dot(g3, M, 1, 1), _sym_dot(g3, M, 1, 2),
+                    _sym_dot(g3, M, 2, 0), _sym_dot(g3, M, 2, 1), _sym_dot(g3, M, 2, 2),
+                )  # fmt: skip
+                gR = (gM[0] * s0, gM[1] * s1, gM[2] * s2, gM[3] * s0, gM[4] * s1, gM[5] * s2,
+                      gM[6] * s0, gM[7] * s1, gM[8] * s2)  # fmt: skip
+                gr_ls[i, 0] = (F0 + gM[0] * R[0] + gM[3] * R[3] + gM[6] * R[6]) * s0  # s = exp(log s)
+                gr_ls[i, 1] = (F0 + gM[1] * R[1] + gM[4] * R[4] + gM[7] * R[7]) * s1
+                gr_ls[i, 2] = (F0 + gM[2] * R[2] + gM[5] * R[5] + gM[8] * R[8]) * s2
                 qw, qx, qy, qz = quats[i, 0] / qn, quats[i, 1] / qn, quats[i, 2] / qn, quats[i, 3] / qn
-                gw = F2 * (-qz * gR[0, 1] + qy * gR[0, 2] + qz * gR[1, 0] - qx * gR[1, 2] - qy * gR[2, 0] + qx * gR[2, 1])
-                gx = F2 * (qy * gR[0, 1] + qz * gR[0, 2] + qy * gR[1, 0] - F2 * qx * gR[1, 1] - qw * gR[1, 2]
-                           + qz * gR[2, 0] + qw * gR[2, 1] - F2 * qx * gR[2, 2])  # fmt: skip
-                gy = F2 * (-F2 * qy * gR[0, 0] + qx * gR[0, 1] + qw * gR[0, 2] + qx * gR[1, 0] + qz * gR[1, 2]
-                           - qw * gR[2, 0] + qz * gR[2, 1] - F2 * qy * gR[2, 2])  # fmt: skip
-                gz = F2 * (-F2 * qz * gR[0, 0] - qw * gR[0, 1] + qx * gR[0, 2] + qw * gR[1, 0] - F2 * qz * gR[1, 1]
-                           + qy * gR[1, 2] + qx * gR[2, 0] + qy * gR[2, 1])  # fmt: skip
+                gw = F2 * (-qz * gR[1] + qy * gR[2] + qz * gR[3] - qx * gR[5] - qy * gR[6] + qx * gR[7])
+                gx = F2 * (qy * gR[1] + qz * gR[2] + qy * gR[3] - F2 * qx * gR[4] - qw * gR[5]
+                           + qz * gR[6] + qw * gR[7] - F2 * qx * gR[8])  # fmt: skip
+                gy = F2 * (-F2 * qy * gR[0] + qx * gR[1] + qw * gR[2] + qx * gR[3] + qz * gR[5]
+                           - qw * gR[6] + qz * gR[7] - F2 * qy * gR[8])  # fmt: skip
+                gz = F2 * (-F2 * qz * gR[0] - qw * gR[1] + qx * gR[2] + qw * gR[3] - F2 * qz * gR[4]
+                           + qy * gR[5] + qx * gR[6] + qy * gR[7])  # fmt: skip
                 dot = qw * gw + qx * gx + qy * gy + qz * gz  # q / |q|
                 gr_quats[i, 0] = (gw - qw * dot) / qn
                 gr_quats[i, 1] = (gx - qx * dot) / qn
