@@ -15,6 +15,11 @@ rule by hand (the derivation is written next to each step). Each Gaussian's grad
 computed by one thread with no reduction across Gaussians, so results are bitwise identical
 across runs and thread counts.
 
+Each block of Gaussians goes through three loops: the library calls (exp, log) one Gaussian
+at a time, writing one 1D array per quantity; the projection (``_project_block``, and its
+chain rule in two loops), arithmetic only, which LLVM vectorises across Gaussians (lanes never
+reorder the arithmetic: no fast-math, so the bits are those of a scalar loop); the SH colour.
+
 Float literals are ``np.float32`` constants: a Python float would promote the maths to float64.
 """
 
@@ -42,6 +47,7 @@ F_ALPHA_MIN = np.float32(ALPHA_MIN)
 F_EXTEND = np.float32(RADIUS_EXTEND)
 F_FAR = np.float32(FAR_PLANE)
 F_OFFSET = np.float32(PIXEL_OFFSET)
+F_2_63 = np.float32(2.0**63)  # int64's range, as float32
 SC0 = np.float32(C0)
 SC1 = np.float32(C1)
 SC2 = np.array(C2, np.float32)
@@ -53,7 +59,7 @@ CAM_LOX, CAM_HIX, CAM_LOY, CAM_HIY = 8, 9, 10, 11  # clamp limits of x/z and y/z
 N_CAM = 12
 
 
-BLOCK = 256  # Gaussians per parallel work item (each item allocates its SH basis buffers once)
+BLOCK = 256  # Gaussians per parallel work item
 
 
 @njit(**JIT)
@@ -203,48 +209,41 @@ def _sym_dot(G, M, r, k):
 
 
 @njit(inline="always", **JIT)
-def _linear(view):
-    """The rotation block W of a world-to-camera matrix [4, 4] as a row-major 9-tuple."""
+def _affine(view):
+    """The top three rows of a world-to-camera matrix [4, 4] as a row-major 12-tuple."""
     return (
-        view[0, 0], view[0, 1], view[0, 2], view[1, 0], view[1, 1], view[1, 2], view[2, 0], view[2, 1], view[2, 2],
+        view[0, 0], view[0, 1], view[0, 2], view[0, 3], view[1, 0], view[1, 1], view[1, 2], view[1, 3],
+        view[2, 0], view[2, 1], view[2, 2], view[2, 3],
     )  # fmt: skip
 
 
 @njit(inline="always", **JIT)
-def _in_front(pz, cam):
-    """Whether a camera-space depth lies in gsplat's [near, far] range."""
-    return pz >= cam[CAM_NEAR] and pz <= F_FAR
+def _geometry(mean_x, mean_y, mean_z, scale, q, V, W, fx, fy, near, lims, eps):
+    """Camera-space centre, clamped tangents, Jacobian and 2D covariance of one Gaussian.
 
-
-@njit(**JIT)  # not inlined into the parallel loops: their array analysis mistakes tuples for shapes
-def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, W, cam):
-    """Camera-space centre, clamped tangents, Jacobian and 2D covariance of Gaussian i.
-
-    ``W`` is ``_linear(view)``. Returns (px, py, pz, z_safe, u, v, u_c, v_c, a, b, c, qnorm,
-    R, scale, cov_cam, jac): R (rotation of the normalised quaternion) and cov_cam as row-major
-    9-tuples, scale as a 3-tuple, jac as its non-zero entries (J00, J02, J11, J12) of
-    J = [[J00, 0, J02], [0, J11, J12]].
+    ``scale``: exp(log scales) (3-tuple); ``q``: its quaternion (w, x, y, z); ``V``: the
+    camera's ``_affine`` rows and ``W`` their rotation block (row-major 9-tuple); ``lims``:
+    the clamp limits (lo x/z, hi x/z, lo y/z, hi y/z). Returns (px, py, pz, z_safe, u, v, u_c,
+    v_c, a, b, c, qnorm, R, cov_cam, jac): R (rotation of the normalised quaternion) and
+    cov_cam as row-major 9-tuples, jac as the non-zero entries (J00, J02, J11, J12) of
+    J = [[J00, 0, J02], [0, J11, J12]]. Arithmetic only (no calls, no branches).
     """
-    px = view[0, 0] * mean_x + view[0, 1] * mean_y + view[0, 2] * mean_z + view[0, 3]
-    py = view[1, 0] * mean_x + view[1, 1] * mean_y + view[1, 2] * mean_z + view[1, 3]
-    pz = view[2, 0] * mean_x + view[2, 1] * mean_y + view[2, 2] * mean_z + view[2, 3]
-    z = pz if _in_front(pz, cam) else F1
+    px = V[0] * mean_x + V[1] * mean_y + V[2] * mean_z + V[3]
+    py = V[4] * mean_x + V[5] * mean_y + V[6] * mean_z + V[7]
+    pz = V[8] * mean_x + V[9] * mean_y + V[10] * mean_z + V[11]
+    z = pz if pz >= near and pz <= F_FAR else F1
     u = px / z
     v = py / z
-    u_c = min(max(u, cam[CAM_LOX]), cam[CAM_HIX])
-    v_c = min(max(v, cam[CAM_LOY]), cam[CAM_HIY])
-    fx = cam[CAM_FX]
-    fy = cam[CAM_FY]
+    u_c = min(max(u, lims[0]), lims[1])
+    v_c = min(max(v, lims[2]), lims[3])
     j00 = fx / z
     j02 = -fx * u_c / z
     j11 = fy / z
     j12 = -fy * v_c / z
-    qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+    qw, qx, qy, qz = q
     qn = np.float32(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz))
     R = _rotation(qw / qn, qx / qn, qy / qn, qz / qn)
-    s0 = np.float32(math.exp(log_scales[i, 0]))
-    s1 = np.float32(math.exp(log_scales[i, 1]))
-    s2 = np.float32(math.exp(log_scales[i, 2]))
+    s0, s1, s2 = scale
     M = (R[0] * s0, R[1] * s1, R[2] * s2, R[3] * s0, R[4] * s1, R[5] * s2, R[6] * s0, R[7] * s1, R[8] * s2)
     cov3 = _mul3(M, M, False, True)  # (R S)(R S)^T
     cov_cam = _mul3(_mul3(W, cov3, False, False), W, False, True)  # W cov3 W^T
@@ -259,10 +258,61 @@ def _geometry(i, mean_x, mean_y, mean_z, log_scales, quats, view, W, cam):
     c01 = t00 * F0 + t01 * j11 + t02 * j12
     c10 = t10 * j00 + t11 * F0 + t12 * j02
     c11 = t10 * F0 + t11 * j11 + t12 * j12
-    a = c00 + cam[CAM_EPS2D]
+    a = c00 + eps
     b = F_HALF * (c01 + c10)
-    c = c11 + cam[CAM_EPS2D]
-    return px, py, pz, z, u, v, u_c, v_c, a, b, c, qn, R, (s0, s1, s2), cov_cam, (j00, j02, j11, j12)
+    c = c11 + eps
+    return px, py, pz, z, u, v, u_c, v_c, a, b, c, qn, R, cov_cam, (j00, j02, j11, j12)
+
+
+@njit(inline="always", **JIT)
+def _ceil(x):
+    """``np.float32(math.ceil(x))`` as the earlier code computed it through an int64, without the
+    int64 (a library call that keeps a loop from being vectorised): ceil(x) (+0 for -0) where
+    int64 holds it; int64's minimum, as x86's conversion gives, for larger values and NaN."""
+    return np.ceil(x) + F0 if abs(x) < F_2_63 else -F_2_63
+
+
+@njit(**JIT)
+def _project_block(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac,
+                   depths, m2x, m2y, con0, con1, con2, rx, ry):  # fmt: skip
+    """The projection of Gaussians lo..hi-1: depths, means2d (m2x, m2y), conics (con0..2) and
+    radii (rx, ry) from the centres at time t (mx, my, mz), quaternions, scales (exp(log
+    scales)), log(opacity / ALPHA_MIN) and opacities.
+
+    One 1D array per quantity (structure of arrays), no library calls and no branches (both
+    sides computed, one selected), so that LLVM vectorises the loop on AVX2 and AVX-512 alike;
+    an [N, k] array read or written at k i + c keeps it scalar on AVX2 (cost model) and,
+    without extra runtime checks, on AVX-512. Lanes never reorder the arithmetic (no
+    fast-math): the results are those of the scalar loop."""
+    width, height, fx, fy, cx, cy = cam[CAM_W], cam[CAM_H], cam[CAM_FX], cam[CAM_FY], cam[CAM_CX], cam[CAM_CY]
+    near, eps = cam[CAM_NEAR], cam[CAM_EPS2D]
+    lims = (cam[CAM_LOX], cam[CAM_HIX], cam[CAM_LOY], cam[CAM_HIY])
+    V = _affine(view)
+    W = (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
+    for j in range(lo, hi):
+        i = np.uint64(j)  # unsigned: no negative-index wrap-around in the loop
+        px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn, R, cov_cam, jac = _geometry(
+            mx[i], my[i], mz[i], (s0[i], s1[i], s2[i]), (qw[i], qx[i], qy[i], qz[i]), V, W, fx, fy, near, lims, eps
+        )
+        depths[i] = pz
+        gx = fx * u + cx
+        gy = fy * v + cy
+        det = ca * cc - cb * cb
+        keep = pz >= near and pz <= F_FAR and det > F0 and opac[i] >= F_ALPHA_MIN
+        extend = min(F_EXTEND, np.float32(math.sqrt(F2 * log_ratio[i]))) if keep else F0  # alpha = 1/255 there
+        rad_x = min(_ceil(extend * np.float32(math.sqrt(max(ca, F0)))), F_RADIUS_MAX)
+        rad_y = min(_ceil(extend * np.float32(math.sqrt(max(cc, F0)))), F_RADIUS_MAX)
+        ox = gx + F_OFFSET  # gsplat's pixel coordinates
+        oy = gy + F_OFFSET
+        on_screen = ox + rad_x > F0 and ox - rad_x < width and oy + rad_y > F0 and oy - rad_y < height
+        ok = keep and on_screen and (rad_x > F0 or rad_y > F0)
+        rx[i] = np.int32(rad_x) if ok else 0
+        ry[i] = np.int32(rad_y) if ok else 0
+        m2x[i] = gx if ok else F0
+        m2y[i] = gy if ok else F0
+        con0[i] = cc / det if ok else F0
+        con1[i] = -cb / det if ok else F0
+        con2[i] = ca / det if ok else F0
 
 
 @njit(parallel=True, **JIT)
@@ -298,26 +348,40 @@ def prepare_forward(
     radii = np.empty((n, 2), np.int32)
     phis = np.empty(n, np.float32)
     means_t = np.empty((n, 3), np.float32)
-    W = _linear(view)
+    f = np.empty((16, n), np.float32)  # one row per quantity of _project_block (its argument order)
+    mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, m2x, m2y, con0, con1, con2 = (
+        f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15]
+    )
+    rad = np.empty((2, n), np.int32)
     for blk in prange((n + BLOCK - 1) // BLOCK):
-        basis = np.empty(16, np.float32)
-        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
-            n_dim = sh0.shape[2]
-            width = cam[CAM_W]
-            height = cam[CAM_H]
+        lo = blk * BLOCK
+        hi = min(n, lo + BLOCK)
+        for i in range(lo, hi):  # the library calls (exp, log), one Gaussian at a time
             dt, s, a, gv, phi = _temporal(
                 t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
             )
             phis[i] = phi
-            opac[i] = _sigmoid(opacity_logits[i]) * phi
-            mx = means[i, 0] + velocities[i, 0] * dt
-            my = means[i, 1] + velocities[i, 1] * dt
-            mz = means[i, 2] + velocities[i, 2] * dt
-            means_t[i, 0] = mx
-            means_t[i, 1] = my
-            means_t[i, 2] = mz
+            o = _sigmoid(opacity_logits[i]) * phi
+            opac[i] = o
+            log_ratio[i] = np.float32(math.log(o / F_ALPHA_MIN))
+            mx[i] = means[i, 0] + velocities[i, 0] * dt
+            my[i] = means[i, 1] + velocities[i, 1] * dt
+            mz[i] = means[i, 2] + velocities[i, 2] * dt
+            qw[i], qx[i], qy[i], qz[i] = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+            s0[i] = np.float32(math.exp(log_scales[i, 0]))
+            s1[i] = np.float32(math.exp(log_scales[i, 1]))
+            s2[i] = np.float32(math.exp(log_scales[i, 2]))
+        _project_block(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac,
+                       depths, m2x, m2y, con0, con1, con2, rad[0], rad[1])  # fmt: skip
+        basis = np.empty(16, np.float32)
+        for i in range(lo, hi):
+            means_t[i, 0], means_t[i, 1], means_t[i, 2] = mx[i], my[i], mz[i]
+            means2d[i, 0], means2d[i, 1] = m2x[i], m2y[i]
+            conics[i, 0], conics[i, 1], conics[i, 2] = con0[i], con1[i], con2[i]
+            radii[i, 0], radii[i, 1] = rad[0, i], rad[1, i]
             # colour along the (twice normalised, as view.py then sh.py do) viewing direction
-            d1x, d1y, d1z, _ = _normalise(mx - centre[0], my - centre[1], mz - centre[2], F_EPS_DIR)
+            n_dim = sh0.shape[2]
+            d1x, d1y, d1z, _ = _normalise(mx[i] - centre[0], my[i] - centre[1], mz[i] - centre[2], F_EPS_DIR)
             dx, dy, dz, _ = _normalise(d1x, d1y, d1z, F_EPS_SH)
             _basis(sh_degree, dx, dy, dz, basis)
             for ch in range(n_dim):
@@ -325,41 +389,135 @@ def prepare_forward(
                 for k in range(1, (sh_degree + 1) * (sh_degree + 1)):
                     rgb += basis[k] * shN[i, k - 1, ch]
                 colors[i, ch] = max(rgb + F_HALF, F0)
-            # projection
-            px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn, _r, _s, _cov, _jac = _geometry(
-                i, mx, my, mz, log_scales, quats, view, W, cam
-            )
-            depths[i] = pz
-            m2x = cam[CAM_FX] * u + cam[CAM_CX]
-            m2y = cam[CAM_FY] * v + cam[CAM_CY]
-            det = ca * cc - cb * cb
-            o = opac[i]
-            keep = _in_front(pz, cam) and det > F0 and o >= F_ALPHA_MIN
-            extend = F0
-            if keep:  # sigmas at which alpha falls to 1/255
-                extend = min(F_EXTEND, np.float32(math.sqrt(F2 * np.float32(math.log(o / F_ALPHA_MIN)))))
-            rx = min(np.float32(math.ceil(extend * np.float32(math.sqrt(max(ca, F0))))), F_RADIUS_MAX)
-            ry = min(np.float32(math.ceil(extend * np.float32(math.sqrt(max(cc, F0))))), F_RADIUS_MAX)
-            gx = m2x + F_OFFSET  # gsplat's pixel coordinates
-            gy = m2y + F_OFFSET
-            on_screen = gx + rx > F0 and gx - rx < width and gy + ry > F0 and gy - ry < height
-            if keep and on_screen and (rx > F0 or ry > F0):
-                radii[i, 0] = np.int32(rx)
-                radii[i, 1] = np.int32(ry)
-                means2d[i, 0] = m2x
-                means2d[i, 1] = m2y
-                conics[i, 0] = cc / det
-                conics[i, 1] = -cb / det
-                conics[i, 2] = ca / det
-            else:
-                radii[i, 0] = 0
-                radii[i, 1] = 0
-                means2d[i, 0] = F0
-                means2d[i, 1] = F0
-                conics[i, 0] = F0
-                conics[i, 1] = F0
-                conics[i, 2] = F0
     return means2d, conics, colors, opac, depths, radii, phis, means_t
+
+
+@njit(inline="always", **JIT)
+def _projection_grads(i, V, W, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x,
+                      g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths):  # fmt: skip
+    """The chain rule through the projection of Gaussian i: (gpx, gpy, gpz), the cotangent of
+    its camera-space centre (the depth output's included), and the gradients of its log scales
+    (3) and quaternion (4). Culled Gaussians (radii_x 0) get zeros and only their depth's
+    cotangent: both sides are computed and one selected (no branch, so that the loops that
+    call it are vectorised). ``cam`` is the camera row's values as a tuple (``_cam_values``)."""
+    fx, fy, near, eps, lims = cam
+    q = (qw[i], qx[i], qy[i], qz[i])
+    sx, sy, sz = s0[i], s1[i], s2[i]
+    px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn, R, cov_cam, jac = _geometry(
+        mx[i], my[i], mz[i], (sx, sy, sz), q, V, W, fx, fy, near, lims, eps
+    )
+    # conic = (c, -b, a) / det, det = a c - b^2
+    det = ca * cc - cb * cb
+    id2 = F1 / (det * det)
+    gA, gB, gC = g_con0[i], g_con1[i], g_con2[i]
+    ga = (-cc * cc * gA + cb * cc * gB - cb * cb * gC) * id2
+    gb = (F2 * cb * cc * gA - (det + F2 * cb * cb) * gB + F2 * ca * cb * gC) * id2
+    gc = (-cb * cb * gA + ca * cb * gB - ca * ca * gC) * id2
+    # cov2d = J C J^T with a = cov00 + eps, b = (cov01 + cov10) / 2, c = cov11 + eps:
+    # G = [[ga, gb/2], [gb/2, gc]], dL/dC = J^T G J, dL/dJ = 2 G J C.
+    g00, g01, g11 = ga, F_HALF * gb, gc
+    j00, j02, j11, j12 = jac  # J = [[j00, 0, j02], [0, j11, j12]]; its zeros multiplied as written
+    gj00, gj01, gj02 = g00 * j00 + g01 * F0, g00 * F0 + g01 * j11, g00 * j02 + g01 * j12  # G J
+    gj10, gj11, gj12 = g01 * j00 + g11 * F0, g01 * F0 + g11 * j11, g01 * j02 + g11 * j12
+    g_cam = (  # J^T (G J)
+        j00 * gj00 + F0 * gj10, j00 * gj01 + F0 * gj11, j00 * gj02 + F0 * gj12,
+        F0 * gj00 + j11 * gj10, F0 * gj01 + j11 * gj11, F0 * gj02 + j11 * gj12,
+        j02 * gj00 + j12 * gj10, j02 * gj01 + j12 * gj11, j02 * gj02 + j12 * gj12,
+    )  # fmt: skip
+    # dL/dJ = 2 (G J) C: the entries at J's non-zeros
+    gJ00 = F2 * (gj00 * cov_cam[0] + gj01 * cov_cam[3] + gj02 * cov_cam[6])
+    gJ02 = F2 * (gj00 * cov_cam[2] + gj01 * cov_cam[5] + gj02 * cov_cam[8])
+    gJ11 = F2 * (gj10 * cov_cam[1] + gj11 * cov_cam[4] + gj12 * cov_cam[7])
+    gJ12 = F2 * (gj10 * cov_cam[2] + gj11 * cov_cam[5] + gj12 * cov_cam[8])
+    # J = [[fx/z, 0, -fx u_c/z], [0, fy/z, -fy v_c/z]]; the depth output's cotangent first
+    iz = F1 / z
+    gpz = g_depths[i] + (-gJ00 * fx + gJ02 * fx * u_c - gJ11 * fy + gJ12 * fy * v_c) * iz * iz
+    gu = g_m2x[i] * fx
+    gv_ = g_m2y[i] * fy
+    # the clamp passes the gradient inside its range
+    gu = gu + -gJ02 * fx * iz if lims[0] <= u <= lims[1] else gu
+    gv_ = gv_ + -gJ12 * fy * iz if lims[2] <= v <= lims[3] else gv_
+    # u = x / z, v = y / z
+    gpx = F0 + gu * iz
+    gpy = F0 + gv_ * iz
+    gpz += -(gu * u + gv_ * v) * iz
+    # cov_cam = W cov3 W^T  ->  dL/dcov3 = W^T g_cam W
+    g3 = _mul3(_mul3(W, g_cam, True, False), W, False, False)
+    # cov3 = M M^T, M = R S  ->  dL/dM = (g3 + g3^T) M; dR_rk = dM_rk s_k; ds_k = sum_r dM_rk R_rk
+    M = (R[0] * sx, R[1] * sy, R[2] * sz, R[3] * sx, R[4] * sy, R[5] * sz, R[6] * sx, R[7] * sy, R[8] * sz)
+    gM = (
+        _sym_dot(g3, M, 0, 0), _sym_dot(g3, M, 0, 1), _sym_dot(g3, M, 0, 2),
+        _sym_dot(g3, M, 1, 0), _sym_dot(g3, M, 1, 1), _sym_dot(g3, M, 1, 2),
+        _sym_dot(g3, M, 2, 0), _sym_dot(g3, M, 2, 1), _sym_dot(g3, M, 2, 2),
+    )  # fmt: skip
+    gR = (gM[0] * sx, gM[1] * sy, gM[2] * sz, gM[3] * sx, gM[4] * sy, gM[5] * sz,
+          gM[6] * sx, gM[7] * sy, gM[8] * sz)  # fmt: skip
+    nw, nx, ny, nz = q[0] / qn, q[1] / qn, q[2] / qn, q[3] / qn
+    gw = F2 * (-nz * gR[1] + ny * gR[2] + nz * gR[3] - nx * gR[5] - ny * gR[6] + nx * gR[7])
+    gx = F2 * (ny * gR[1] + nz * gR[2] + ny * gR[3] - F2 * nx * gR[4] - nw * gR[5]
+               + nz * gR[6] + nw * gR[7] - F2 * nx * gR[8])  # fmt: skip
+    gy = F2 * (-F2 * ny * gR[0] + nx * gR[1] + nw * gR[2] + nx * gR[3] + nz * gR[5]
+               - nw * gR[6] + nz * gR[7] - F2 * ny * gR[8])  # fmt: skip
+    gz = F2 * (-F2 * nz * gR[0] - nw * gR[1] + nx * gR[2] + nw * gR[3] - F2 * nz * gR[4]
+               + ny * gR[5] + nx * gR[6] + ny * gR[7])  # fmt: skip
+    dot = nw * gw + nx * gx + ny * gy + nz * gz  # q / |q|
+    ok = radii_x[i] > 0
+    return (
+        gpx if ok else F0,
+        gpy if ok else F0,
+        gpz if ok else g_depths[i],
+        (F0 + gM[0] * R[0] + gM[3] * R[3] + gM[6] * R[6]) * sx if ok else F0,  # s = exp(log s)
+        (F0 + gM[1] * R[1] + gM[4] * R[4] + gM[7] * R[7]) * sy if ok else F0,
+        (F0 + gM[2] * R[2] + gM[5] * R[5] + gM[8] * R[8]) * sz if ok else F0,
+        (gw - nw * dot) / qn if ok else F0,
+        (gx - nx * dot) / qn if ok else F0,
+        (gy - ny * dot) / qn if ok else F0,
+        (gz - nz * dot) / qn if ok else F0,
+    )
+
+
+@njit(inline="always", **JIT)
+def _cam_values(cam):
+    """(fx, fy, near, eps2d, (lo x/z, hi x/z, lo y/z, hi y/z)) of a camera row."""
+    return cam[CAM_FX], cam[CAM_FY], cam[CAM_NEAR], cam[CAM_EPS2D], (cam[CAM_LOX], cam[CAM_HIX], cam[CAM_LOY], cam[CAM_HIY])
+
+
+@njit(**JIT)
+def _position_block_backward(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x,
+                             g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths, g_mtx, g_mty, g_mtz,
+                             g_mx, g_my, g_mz):  # fmt: skip
+    """g_m* = g_mt* + what the projection of Gaussians lo..hi-1 sends back to their centres at
+    time t (``_projection_grads``). One 1D array per quantity, as in ``_project_block``, and
+    fewer than eight arrays written: with more, LLVM gives up the runtime overlap checks that
+    vectorising needs, so the shape gradients have a loop of their own."""
+    c = _cam_values(cam)
+    V = _affine(view)
+    W = (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
+    for j in range(lo, hi):
+        i = np.uint64(j)  # unsigned: no negative-index wrap-around in the loop
+        gpx, gpy, gpz, _, _, _, _, _, _, _ = _projection_grads(
+            i, V, W, c, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths
+        )
+        # p = W mean + t
+        g_mx[i] = g_mtx[i] + (V[0] * gpx + V[4] * gpy + V[8] * gpz)
+        g_my[i] = g_mty[i] + (V[1] * gpx + V[5] * gpy + V[9] * gpz)
+        g_mz[i] = g_mtz[i] + (V[2] * gpx + V[6] * gpy + V[10] * gpz)
+
+
+@njit(**JIT)
+def _shape_block_backward(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x,
+                          g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths,
+                          gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz):  # fmt: skip
+    """The gradients of the log scales and quaternions of Gaussians lo..hi-1
+    (``_projection_grads``; see ``_position_block_backward``)."""
+    c = _cam_values(cam)
+    V = _affine(view)
+    W = (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
+    for j in range(lo, hi):
+        i = np.uint64(j)
+        _, _, _, gr_ls0[i], gr_ls1[i], gr_ls2[i], gr_qw[i], gr_qx[i], gr_qy[i], gr_qz[i] = _projection_grads(
+            i, V, W, c, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths
+        )
 
 
 @njit(parallel=True, **JIT)
@@ -400,112 +558,65 @@ def prepare_backward(
     gr_vel = np.empty((n, 3), np.float32)
     gr_times = np.empty(n, np.float32)
     gr_dur = np.empty(n, np.float32)
-    gr_ls = np.zeros((n, 3), np.float32)
-    gr_quats = np.zeros((n, 4), np.float32)
+    gr_ls = np.empty((n, 3), np.float32)
+    gr_quats = np.empty((n, 4), np.float32)
     gr_o = np.empty(n, np.float32)
     gr_gate = np.zeros(n, np.float32)
     gr_sh0 = np.empty(sh0.shape, np.float32)
     gr_shN = np.zeros(shN.shape, np.float32)
-    W = _linear(view)
+    temporal = np.empty((5, n), np.float32)  # the forward's (dt, s, a, gate value, phi)
+    f = np.empty((28, n), np.float32)  # one row per quantity of _project_block_backward (its argument order)
+    mx, my, mz, qw, qx, qy, qz, s0, s1, s2, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_mtx, g_mty, g_mtz = (
+        f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15], f[16],
+        f[17],
+    )  # fmt: skip
+    gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz, g_mx, g_my, g_mz = (
+        f[18], f[19], f[20], f[21], f[22], f[23], f[24], f[25], f[26], f[27]
+    )
+    radii_x = np.empty(n, np.int32)
     for blk in prange((n + BLOCK - 1) // BLOCK):
-        basis = np.empty(16, np.float32)
-        g_basis = np.empty(16, np.float32)
-        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
-            n_dim = sh0.shape[2]
-            n_bases = (sh_degree + 1) * (sh_degree + 1)
-            fx = cam[CAM_FX]
-            fy = cam[CAM_FY]
+        lo = blk * BLOCK
+        hi = min(n, lo + BLOCK)
+        for i in range(lo, hi):  # the library calls (exp), one Gaussian at a time, and the inputs' rows
             dt, s, a, gv, phi = _temporal(
                 t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
             )
-            mx = means[i, 0] + velocities[i, 0] * dt
-            my = means[i, 1] + velocities[i, 1] * dt
-            mz = means[i, 2] + velocities[i, 2] * dt
-            gmx = g_means_t[i, 0]
-            gmy = g_means_t[i, 1]
-            gmz = g_means_t[i, 2]
-
-            # --- projection. Camera-space cotangent g_p, starting with the depth output.
-            px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn, R, scale, cov_cam, jac = _geometry(
-                i, mx, my, mz, log_scales, quats, view, W, cam
-            )
+            temporal[0, i], temporal[1, i], temporal[2, i], temporal[3, i], temporal[4, i] = dt, s, a, gv, phi
+            mx[i] = means[i, 0] + velocities[i, 0] * dt
+            my[i] = means[i, 1] + velocities[i, 1] * dt
+            mz[i] = means[i, 2] + velocities[i, 2] * dt
+            qw[i], qx[i], qy[i], qz[i] = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+            s0[i] = np.float32(math.exp(log_scales[i, 0]))
+            s1[i] = np.float32(math.exp(log_scales[i, 1]))
+            s2[i] = np.float32(math.exp(log_scales[i, 2]))
+            radii_x[i] = radii[i, 0]
+            g_m2x[i], g_m2y[i] = g_means2d[i, 0], g_means2d[i, 1]
+            g_con0[i], g_con1[i], g_con2[i] = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
+            g_mtx[i], g_mty[i], g_mtz[i] = g_means_t[i, 0], g_means_t[i, 1], g_means_t[i, 2]
+        _position_block_backward(
+            lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
+            g_depths, g_mtx, g_mty, g_mtz, g_mx, g_my, g_mz,
+        )  # fmt: skip
+        _shape_block_backward(
+            lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
+            g_depths, gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz,
+        )  # fmt: skip
+        basis = np.empty(16, np.float32)
+        g_basis = np.empty(16, np.float32)
+        for i in range(lo, hi):
+            n_dim = sh0.shape[2]
+            n_bases = (sh_degree + 1) * (sh_degree + 1)
+            dt, s, a, gv, phi = temporal[0, i], temporal[1, i], temporal[2, i], temporal[3, i], temporal[4, i]
+            gr_ls[i, 0], gr_ls[i, 1], gr_ls[i, 2] = gr_ls0[i], gr_ls1[i], gr_ls2[i]
+            gr_quats[i, 0], gr_quats[i, 1], gr_quats[i, 2], gr_quats[i, 3] = gr_qw[i], gr_qx[i], gr_qy[i], gr_qz[i]
+            gmx = g_mx[i]
+            gmy = g_my[i]
+            gmz = g_mz[i]
             for k in range(16):
                 g_basis[k] = F0
-            gpx = F0
-            gpy = F0
-            gpz = g_depths[i]
-            if radii[i, 0] > 0:
-                # conic = (c, -b, a) / det, det = a c - b^2
-                det = ca * cc - cb * cb
-                id2 = F1 / (det * det)
-                gA, gB, gC = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
-                ga = (-cc * cc * gA + cb * cc * gB - cb * cb * gC) * id2
-                gb = (F2 * cb * cc * gA - (det + F2 * cb * cb) * gB + F2 * ca * cb * gC) * id2
-                gc = (-cb * cb * gA + ca * cb * gB - ca * ca * gC) * id2
-                # cov2d = J C J^T with a = cov00 + eps, b = (cov01 + cov10) / 2, c = cov11 + eps:
-                # G = [[ga, gb/2], [gb/2, gc]], dL/dC = J^T G J, dL/dJ = 2 G J C.
-                g00, g01, g11 = ga, F_HALF * gb, gc
-                j00, j02, j11, j12 = jac  # J = [[j00, 0, j02], [0, j11, j12]]; its zeros multiplied as written
-                gj00, gj01, gj02 = g00 * j00 + g01 * F0, g00 * F0 + g01 * j11, g00 * j02 + g01 * j12  # G J
-                gj10, gj11, gj12 = g01 * j00 + g11 * F0, g01 * F0 + g11 * j11, g01 * j02 + g11 * j12
-                g_cam = (  # J^T (G J)
-                    j00 * gj00 + F0 * gj10, j00 * gj01 + F0 * gj11, j00 * gj02 + F0 * gj12,
-                    F0 * gj00 + j11 * gj10, F0 * gj01 + j11 * gj11, F0 * gj02 + j11 * gj12,
-                    j02 * gj00 + j12 * gj10, j02 * gj01 + j12 * gj11, j02 * gj02 + j12 * gj12,
-                )  # fmt: skip
-                # dL/dJ = 2 (G J) C: the entries at J's non-zeros
-                gJ00 = F2 * (gj00 * cov_cam[0] + gj01 * cov_cam[3] + gj02 * cov_cam[6])
-                gJ02 = F2 * (gj00 * cov_cam[2] + gj01 * cov_cam[5] + gj02 * cov_cam[8])
-                gJ11 = F2 * (gj10 * cov_cam[1] + gj11 * cov_cam[4] + gj12 * cov_cam[7])
-                gJ12 = F2 * (gj10 * cov_cam[2] + gj11 * cov_cam[5] + gj12 * cov_cam[8])
-                # J = [[fx/z, 0, -fx u_c/z], [0, fy/z, -fy v_c/z]]
-                iz = F1 / z
-                gpz += (-gJ00 * fx + gJ02 * fx * u_c - gJ11 * fy + gJ12 * fy * v_c) * iz * iz
-                gu = g_means2d[i, 0] * fx
-                gv_ = g_means2d[i, 1] * fy
-                if cam[CAM_LOX] <= u <= cam[CAM_HIX]:  # clamp passes the gradient inside its range
-                    gu += -gJ02 * fx * iz
-                if cam[CAM_LOY] <= v <= cam[CAM_HIY]:
-                    gv_ += -gJ12 * fy * iz
-                # u = x / z, v = y / z
-                gpx += gu * iz
-                gpy += gv_ * iz
-                gpz += -(gu * u + gv_ * v) * iz
-                # cov_cam = W cov3 W^T  ->  dL/dcov3 = W^T g_cam W
-                g3 = _mul3(_mul3(W, g_cam, True, False), W, False, False)
-                # cov3 = M M^T, M = R S  ->  dL/dM = (g3 + g3^T) M; dR_rk = dM_rk s_k; ds_k = sum_r dM_rk R_rk
-                s0, s1, s2 = scale
-                M = (R[0] * s0, R[1] * s1, R[2] * s2, R[3] * s0, R[4] * s1, R[5] * s2, R[6] * s0, R[7] * s1, R[8] * s2)
-                gM = (
-                    _sym_dot(g3, M, 0, 0), _sym_dot(g3, M, 0, 1), _sym_dot(g3, M, 0, 2),
-                    _sym_dot(g3, M, 1, 0), _sym_dot(g3, M, 1, 1), _sym_dot(g3, M, 1, 2),
-                    _sym_dot(g3, M, 2, 0), _sym_dot(g3, M, 2, 1), _sym_dot(g3, M, 2, 2),
-                )  # fmt: skip
-                gR = (gM[0] * s0, gM[1] * s1, gM[2] * s2, gM[3] * s0, gM[4] * s1, gM[5] * s2,
-                      gM[6] * s0, gM[7] * s1, gM[8] * s2)  # fmt: skip
-                gr_ls[i, 0] = (F0 + gM[0] * R[0] + gM[3] * R[3] + gM[6] * R[6]) * s0  # s = exp(log s)
-                gr_ls[i, 1] = (F0 + gM[1] * R[1] + gM[4] * R[4] + gM[7] * R[7]) * s1
-                gr_ls[i, 2] = (F0 + gM[2] * R[2] + gM[5] * R[5] + gM[8] * R[8]) * s2
-                qw, qx, qy, qz = quats[i, 0] / qn, quats[i, 1] / qn, quats[i, 2] / qn, quats[i, 3] / qn
-                gw = F2 * (-qz * gR[1] + qy * gR[2] + qz * gR[3] - qx * gR[5] - qy * gR[6] + qx * gR[7])
-                gx = F2 * (qy * gR[1] + qz * gR[2] + qy * gR[3] - F2 * qx * gR[4] - qw * gR[5]
-                           + qz * gR[6] + qw * gR[7] - F2 * qx * gR[8])  # fmt: skip
-                gy = F2 * (-F2 * qy * gR[0] + qx * gR[1] + qw * gR[2] + qx * gR[3] + qz * gR[5]
-                           - qw * gR[6] + qz * gR[7] - F2 * qy * gR[8])  # fmt: skip
-                gz = F2 * (-F2 * qz * gR[0] - qw * gR[1] + qx * gR[2] + qw * gR[3] - F2 * qz * gR[4]
-                           + qy * gR[5] + qx * gR[6] + qy * gR[7])  # fmt: skip
-                dot = qw * gw + qx * gx + qy * gy + qz * gz  # q / |q|
-                gr_quats[i, 0] = (gw - qw * dot) / qn
-                gr_quats[i, 1] = (gx - qx * dot) / qn
-                gr_quats[i, 2] = (gy - qy * dot) / qn
-                gr_quats[i, 3] = (gz - qz * dot) / qn
-            # p = W mean + t
-            gmx += view[0, 0] * gpx + view[1, 0] * gpy + view[2, 0] * gpz
-            gmy += view[0, 1] * gpx + view[1, 1] * gpy + view[2, 1] * gpz
-            gmz += view[0, 2] * gpx + view[1, 2] * gpy + view[2, 2] * gpz
 
             # --- SH colour
-            d1x, d1y, d1z, n1 = _normalise(mx - centre[0], my - centre[1], mz - centre[2], F_EPS_DIR)
+            d1x, d1y, d1z, n1 = _normalise(mx[i] - centre[0], my[i] - centre[1], mz[i] - centre[2], F_EPS_DIR)
             dx, dy, dz, n2 = _normalise(d1x, d1y, d1z, F_EPS_SH)
             _basis(sh_degree, dx, dy, dz, basis)
             for ch in range(n_dim):
