@@ -265,6 +265,19 @@ def _geometry(mean_x, mean_y, mean_z, scale, q, V, W, fx, fy, near, lims, eps):
 
 
 @njit(inline="always", **JIT)
+def _gaussian_rows(i, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2):
+    """Gaussian i's centre at time t (its offset ``dt`` = t - mu_t), quaternion and scales
+    (exp(log scales)) into the 1D rows the projection loops read."""
+    mx[i] = means[i, 0] + velocities[i, 0] * dt
+    my[i] = means[i, 1] + velocities[i, 1] * dt
+    mz[i] = means[i, 2] + velocities[i, 2] * dt
+    qw[i], qx[i], qy[i], qz[i] = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+    s0[i] = np.float32(math.exp(log_scales[i, 0]))
+    s1[i] = np.float32(math.exp(log_scales[i, 1]))
+    s2[i] = np.float32(math.exp(log_scales[i, 2]))
+
+
+@njit(inline="always", **JIT)
 def _ceil(x):
     """``np.float32(math.ceil(x))`` as the earlier code computed it through an int64, without the
     int64 (a library call that keeps a loop from being vectorised): ceil(x) (+0 for -0) where
@@ -364,13 +377,7 @@ def prepare_forward(
             o = _sigmoid(opacity_logits[i]) * phi
             opac[i] = o
             log_ratio[i] = np.float32(math.log(o / F_ALPHA_MIN))
-            mx[i] = means[i, 0] + velocities[i, 0] * dt
-            my[i] = means[i, 1] + velocities[i, 1] * dt
-            mz[i] = means[i, 2] + velocities[i, 2] * dt
-            qw[i], qx[i], qy[i], qz[i] = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-            s0[i] = np.float32(math.exp(log_scales[i, 0]))
-            s1[i] = np.float32(math.exp(log_scales[i, 1]))
-            s2[i] = np.float32(math.exp(log_scales[i, 2]))
+            _gaussian_rows(i, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
         _project_block(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac,
                        depths, m2x, m2y, con0, con1, con2, rad[0], rad[1])  # fmt: skip
         basis = np.empty(16, np.float32)
@@ -582,13 +589,7 @@ def prepare_backward(
                 t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
             )
             temporal[0, i], temporal[1, i], temporal[2, i], temporal[3, i], temporal[4, i] = dt, s, a, gv, phi
-            mx[i] = means[i, 0] + velocities[i, 0] * dt
-            my[i] = means[i, 1] + velocities[i, 1] * dt
-            mz[i] = means[i, 2] + velocities[i, 2] * dt
-            qw[i], qx[i], qy[i], qz[i] = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-            s0[i] = np.float32(math.exp(log_scales[i, 0]))
-            s1[i] = np.float32(math.exp(log_scales[i, 1]))
-            s2[i] = np.float32(math.exp(log_scales[i, 2]))
+            _gaussian_rows(i, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
             radii_x[i] = radii[i, 0]
             g_m2x[i], g_m2y[i] = g_means2d[i, 0], g_means2d[i, 1]
             g_con0[i], g_con1[i], g_con2[i] = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
