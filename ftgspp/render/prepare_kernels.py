@@ -15,10 +15,14 @@ rule by hand (the derivation is written next to each step). Each Gaussian's grad
 computed by one thread with no reduction across Gaussians, so results are bitwise identical
 across runs and thread counts.
 
-Each block of Gaussians goes through three loops: the library calls (exp, log) one Gaussian
-at a time, writing one 1D array per quantity; the projection (``_project_block``, and its
-chain rule in two loops), arithmetic only, which LLVM vectorises across Gaussians (lanes never
-reorder the arithmetic: no fast-math, so the bits are those of a scalar loop); the SH colour.
+Each block of 256 Gaussians goes through three loops: the library calls (exp, log) one
+Gaussian at a time, writing one 1D array per quantity into the block's own scratch rows; the
+projection (``_project_block``, and its chain rule in two loops), arithmetic only, which LLVM
+vectorises across Gaussians; the SH colour. Lanes never reorder the arithmetic (no fast-math),
+so every non-NaN result has the bits a scalar loop gives it, on every target. A NaN result is
+NaN in the same places, but its payload and sign bits depend on the instructions LLVM chose
+(vector lanes or the scalar remainder, a fresh compile or a cached one), as they already did
+between targets: the guarantee leaves them out.
 
 Float literals are ``np.float32`` constants: a Python float would promote the maths to float64.
 """
@@ -226,7 +230,8 @@ def _geometry(mean_x, mean_y, mean_z, scale, q, V, W, fx, fy, near, lims, eps):
     the clamp limits (lo x/z, hi x/z, lo y/z, hi y/z). Returns (px, py, pz, z_safe, u, v, u_c,
     v_c, a, b, c, qnorm, R, cov_cam, jac): R (rotation of the normalised quaternion) and
     cov_cam as row-major 9-tuples, jac as the non-zero entries (J00, J02, J11, J12) of
-    J = [[J00, 0, J02], [0, J11, J12]]. Arithmetic only (no calls, no branches).
+    J = [[J00, 0, J02], [0, J11, J12]]. Arithmetic only: the square root is an LLVM intrinsic
+    and the conditions compile to selects, so loops that call it can be vectorised.
     """
     px = V[0] * mean_x + V[1] * mean_y + V[2] * mean_z + V[3]
     py = V[4] * mean_x + V[5] * mean_y + V[6] * mean_z + V[7]
@@ -265,16 +270,16 @@ def _geometry(mean_x, mean_y, mean_z, scale, q, V, W, fx, fy, near, lims, eps):
 
 
 @njit(inline="always", **JIT)
-def _gaussian_rows(i, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2):
+def _gaussian_rows(i, b, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2):
     """Gaussian i's centre at time t (its offset ``dt`` = t - mu_t), quaternion and scales
-    (exp(log scales)) into the 1D rows the projection loops read."""
-    mx[i] = means[i, 0] + velocities[i, 0] * dt
-    my[i] = means[i, 1] + velocities[i, 1] * dt
-    mz[i] = means[i, 2] + velocities[i, 2] * dt
-    qw[i], qx[i], qy[i], qz[i] = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-    s0[i] = np.float32(math.exp(log_scales[i, 0]))
-    s1[i] = np.float32(math.exp(log_scales[i, 1]))
-    s2[i] = np.float32(math.exp(log_scales[i, 2]))
+    (exp(log scales)) into entry b of the block's 1D rows that the projection loops read."""
+    mx[b] = means[i, 0] + velocities[i, 0] * dt
+    my[b] = means[i, 1] + velocities[i, 1] * dt
+    mz[b] = means[i, 2] + velocities[i, 2] * dt
+    qw[b], qx[b], qy[b], qz[b] = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+    s0[b] = np.float32(math.exp(log_scales[i, 0]))
+    s1[b] = np.float32(math.exp(log_scales[i, 1]))
+    s2[b] = np.float32(math.exp(log_scales[i, 2]))
 
 
 @njit(inline="always", **JIT)
@@ -286,9 +291,9 @@ def _ceil(x):
 
 
 @njit(**JIT)
-def _project_block(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac,
+def _project_block(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac,
                    depths, m2x, m2y, con0, con1, con2, rx, ry):  # fmt: skip
-    """The projection of Gaussians lo..hi-1: depths, means2d (m2x, m2y), conics (con0..2) and
+    """The projection of a block of m Gaussians (entries 0..m-1 of each array): depths, means2d (m2x, m2y), conics (con0..2) and
     radii (rx, ry) from the centres at time t (mx, my, mz), quaternions, scales (exp(log
     scales)), log(opacity / ALPHA_MIN) and opacities.
 
@@ -302,7 +307,7 @@ def _project_block(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, lo
     lims = (cam[CAM_LOX], cam[CAM_HIX], cam[CAM_LOY], cam[CAM_HIY])
     V = _affine(view)
     W = (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
-    for j in range(lo, hi):
+    for j in range(m):
         i = np.uint64(j)  # unsigned: no negative-index wrap-around in the loop
         px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn, R, cov_cam, jac = _geometry(
             mx[i], my[i], mz[i], (s0[i], s1[i], s2[i]), (qw[i], qx[i], qy[i], qz[i]), V, W, fx, fy, near, lims, eps
@@ -361,14 +366,14 @@ def prepare_forward(
     radii = np.empty((n, 2), np.int32)
     phis = np.empty(n, np.float32)
     means_t = np.empty((n, 3), np.float32)
-    f = np.empty((16, n), np.float32)  # one row per quantity of _project_block (its argument order)
-    mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, m2x, m2y, con0, con1, con2 = (
-        f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15]
-    )
-    rad = np.empty((2, n), np.int32)
     for blk in prange((n + BLOCK - 1) // BLOCK):
         lo = blk * BLOCK
         hi = min(n, lo + BLOCK)
+        f = np.empty((16, hi - lo), np.float32)  # the block's rows, one per quantity of _project_block
+        mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, m2x, m2y, con0, con1, con2 = (
+            f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15]
+        )
+        rad = np.empty((2, hi - lo), np.int32)
         for i in range(lo, hi):  # the library calls (exp, log), one Gaussian at a time
             dt, s, a, gv, phi = _temporal(
                 t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
@@ -376,19 +381,20 @@ def prepare_forward(
             phis[i] = phi
             o = _sigmoid(opacity_logits[i]) * phi
             opac[i] = o
-            log_ratio[i] = np.float32(math.log(o / F_ALPHA_MIN))
-            _gaussian_rows(i, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
-        _project_block(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac,
-                       depths, m2x, m2y, con0, con1, con2, rad[0], rad[1])  # fmt: skip
+            log_ratio[i - lo] = np.float32(math.log(o / F_ALPHA_MIN))
+            _gaussian_rows(i, i - lo, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
+        _project_block(hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac[lo:hi],
+                       depths[lo:hi], m2x, m2y, con0, con1, con2, rad[0], rad[1])  # fmt: skip
         basis = np.empty(16, np.float32)
         for i in range(lo, hi):
-            means_t[i, 0], means_t[i, 1], means_t[i, 2] = mx[i], my[i], mz[i]
-            means2d[i, 0], means2d[i, 1] = m2x[i], m2y[i]
-            conics[i, 0], conics[i, 1], conics[i, 2] = con0[i], con1[i], con2[i]
-            radii[i, 0], radii[i, 1] = rad[0, i], rad[1, i]
+            b = i - lo
+            means_t[i, 0], means_t[i, 1], means_t[i, 2] = mx[b], my[b], mz[b]
+            means2d[i, 0], means2d[i, 1] = m2x[b], m2y[b]
+            conics[i, 0], conics[i, 1], conics[i, 2] = con0[b], con1[b], con2[b]
+            radii[i, 0], radii[i, 1] = rad[0, b], rad[1, b]
             # colour along the (twice normalised, as view.py then sh.py do) viewing direction
             n_dim = sh0.shape[2]
-            d1x, d1y, d1z, _ = _normalise(mx[i] - centre[0], my[i] - centre[1], mz[i] - centre[2], F_EPS_DIR)
+            d1x, d1y, d1z, _ = _normalise(mx[b] - centre[0], my[b] - centre[1], mz[b] - centre[2], F_EPS_DIR)
             dx, dy, dz, _ = _normalise(d1x, d1y, d1z, F_EPS_SH)
             _basis(sh_degree, dx, dy, dz, basis)
             for ch in range(n_dim):
@@ -490,17 +496,17 @@ def _cam_values(cam):
 
 
 @njit(**JIT)
-def _position_block_backward(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x,
+def _position_block_backward(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x,
                              g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths, g_mtx, g_mty, g_mtz,
                              g_mx, g_my, g_mz):  # fmt: skip
-    """g_m* = g_mt* + what the projection of Gaussians lo..hi-1 sends back to their centres at
-    time t (``_projection_grads``). One 1D array per quantity, as in ``_project_block``, and
+    """g_m* = g_mt* + what the projection of a block of Gaussians sends back to their centres at
+    time t (``_projection_grads``), for a block of m Gaussians. One 1D array per quantity, as in ``_project_block``, and
     fewer than eight arrays written: with more, LLVM gives up the runtime overlap checks that
     vectorising needs, so the shape gradients have a loop of their own."""
     c = _cam_values(cam)
     V = _affine(view)
     W = (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
-    for j in range(lo, hi):
+    for j in range(m):
         i = np.uint64(j)  # unsigned: no negative-index wrap-around in the loop
         gpx, gpy, gpz, _, _, _, _, _, _, _ = _projection_grads(
             i, V, W, c, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths
@@ -512,15 +518,15 @@ def _position_block_backward(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, 
 
 
 @njit(**JIT)
-def _shape_block_backward(lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x,
+def _shape_block_backward(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x,
                           g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths,
                           gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz):  # fmt: skip
-    """The gradients of the log scales and quaternions of Gaussians lo..hi-1
+    """The gradients of the log scales and quaternions of a block of m Gaussians
     (``_projection_grads``; see ``_position_block_backward``)."""
     c = _cam_values(cam)
     V = _affine(view)
     W = (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
-    for j in range(lo, hi):
+    for j in range(m):
         i = np.uint64(j)
         _, _, _, gr_ls0[i], gr_ls1[i], gr_ls2[i], gr_qw[i], gr_qx[i], gr_qy[i], gr_qz[i] = _projection_grads(
             i, V, W, c, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths
@@ -571,53 +577,56 @@ def prepare_backward(
     gr_gate = np.zeros(n, np.float32)
     gr_sh0 = np.empty(sh0.shape, np.float32)
     gr_shN = np.zeros(shN.shape, np.float32)
-    temporal = np.empty((5, n), np.float32)  # the forward's (dt, s, a, gate value, phi)
-    f = np.empty((28, n), np.float32)  # one row per quantity of _project_block_backward (its argument order)
-    mx, my, mz, qw, qx, qy, qz, s0, s1, s2, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_mtx, g_mty, g_mtz = (
-        f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15], f[16],
-        f[17],
-    )  # fmt: skip
-    gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz, g_mx, g_my, g_mz = (
-        f[18], f[19], f[20], f[21], f[22], f[23], f[24], f[25], f[26], f[27]
-    )
-    radii_x = np.empty(n, np.int32)
     for blk in prange((n + BLOCK - 1) // BLOCK):
         lo = blk * BLOCK
         hi = min(n, lo + BLOCK)
+        temporal = np.empty((5, hi - lo), np.float32)  # the forward's (dt, s, a, gate value, phi)
+        f = np.empty((28, hi - lo), np.float32)  # the block's rows, one per quantity of the projection loops
+        mx, my, mz, qw, qx, qy, qz, s0, s1, s2, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_mtx, g_mty, g_mtz = (
+            f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15],
+            f[16], f[17],
+        )  # fmt: skip
+        gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz, g_mx, g_my, g_mz = (
+            f[18], f[19], f[20], f[21], f[22], f[23], f[24], f[25], f[26], f[27]
+        )
+        radii_x = np.empty(hi - lo, np.int32)
         for i in range(lo, hi):  # the library calls (exp), one Gaussian at a time, and the inputs' rows
+            b = i - lo
             dt, s, a, gv, phi = _temporal(
                 t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
             )
-            temporal[0, i], temporal[1, i], temporal[2, i], temporal[3, i], temporal[4, i] = dt, s, a, gv, phi
-            _gaussian_rows(i, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
-            radii_x[i] = radii[i, 0]
-            g_m2x[i], g_m2y[i] = g_means2d[i, 0], g_means2d[i, 1]
-            g_con0[i], g_con1[i], g_con2[i] = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
-            g_mtx[i], g_mty[i], g_mtz[i] = g_means_t[i, 0], g_means_t[i, 1], g_means_t[i, 2]
+            temporal[0, b], temporal[1, b], temporal[2, b], temporal[3, b], temporal[4, b] = dt, s, a, gv, phi
+            _gaussian_rows(i, i - lo, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
+            radii_x[b] = radii[i, 0]
+            g_m2x[b], g_m2y[b] = g_means2d[i, 0], g_means2d[i, 1]
+            g_con0[b], g_con1[b], g_con2[b] = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
+            g_mtx[b], g_mty[b], g_mtz[b] = g_means_t[i, 0], g_means_t[i, 1], g_means_t[i, 2]
+        g_dep = g_depths[lo:hi]
         _position_block_backward(
-            lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
-            g_depths, g_mtx, g_mty, g_mtz, g_mx, g_my, g_mz,
+            hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
+            g_dep, g_mtx, g_mty, g_mtz, g_mx, g_my, g_mz,
         )  # fmt: skip
         _shape_block_backward(
-            lo, hi, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
-            g_depths, gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz,
+            hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
+            g_dep, gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz,
         )  # fmt: skip
         basis = np.empty(16, np.float32)
         g_basis = np.empty(16, np.float32)
         for i in range(lo, hi):
             n_dim = sh0.shape[2]
             n_bases = (sh_degree + 1) * (sh_degree + 1)
-            dt, s, a, gv, phi = temporal[0, i], temporal[1, i], temporal[2, i], temporal[3, i], temporal[4, i]
-            gr_ls[i, 0], gr_ls[i, 1], gr_ls[i, 2] = gr_ls0[i], gr_ls1[i], gr_ls2[i]
-            gr_quats[i, 0], gr_quats[i, 1], gr_quats[i, 2], gr_quats[i, 3] = gr_qw[i], gr_qx[i], gr_qy[i], gr_qz[i]
-            gmx = g_mx[i]
-            gmy = g_my[i]
-            gmz = g_mz[i]
+            b = i - lo
+            dt, s, a, gv, phi = temporal[0, b], temporal[1, b], temporal[2, b], temporal[3, b], temporal[4, b]
+            gr_ls[i, 0], gr_ls[i, 1], gr_ls[i, 2] = gr_ls0[b], gr_ls1[b], gr_ls2[b]
+            gr_quats[i, 0], gr_quats[i, 1], gr_quats[i, 2], gr_quats[i, 3] = gr_qw[b], gr_qx[b], gr_qy[b], gr_qz[b]
+            gmx = g_mx[b]
+            gmy = g_my[b]
+            gmz = g_mz[b]
             for k in range(16):
                 g_basis[k] = F0
 
             # --- SH colour
-            d1x, d1y, d1z, n1 = _normalise(mx[i] - centre[0], my[i] - centre[1], mz[i] - centre[2], F_EPS_DIR)
+            d1x, d1y, d1z, n1 = _normalise(mx[b] - centre[0], my[b] - centre[1], mz[b] - centre[2], F_EPS_DIR)
             dx, dy, dz, n2 = _normalise(d1x, d1y, d1z, F_EPS_SH)
             _basis(sh_degree, dx, dy, dz, basis)
             for ch in range(n_dim):
