@@ -214,11 +214,19 @@ def _sym_dot(G, M, r, k):
 
 @njit(inline="always", **JIT)
 def _affine(view):
-    """The top three rows of a world-to-camera matrix [4, 4] as a row-major 12-tuple."""
-    return (
+    """(V, W) of a world-to-camera matrix [4, 4]: V its top three rows as a row-major 12-tuple,
+    W their rotation block as a row-major 9-tuple."""
+    V = (
         view[0, 0], view[0, 1], view[0, 2], view[0, 3], view[1, 0], view[1, 1], view[1, 2], view[1, 3],
         view[2, 0], view[2, 1], view[2, 2], view[2, 3],
     )  # fmt: skip
+    return V, (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
+
+
+@njit(inline="always", **JIT)
+def _cam_values(cam):
+    """(fx, fy, near, eps2d, (lo x/z, hi x/z, lo y/z, hi y/z)) of a camera row."""
+    return cam[CAM_FX], cam[CAM_FY], cam[CAM_NEAR], cam[CAM_EPS2D], (cam[CAM_LOX], cam[CAM_HIX], cam[CAM_LOY], cam[CAM_HIY])
 
 
 @njit(inline="always", **JIT)
@@ -293,20 +301,18 @@ def _ceil(x):
 @njit(**JIT)
 def _project_block(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac,
                    depths, m2x, m2y, con0, con1, con2, rx, ry):  # fmt: skip
-    """The projection of a block of m Gaussians (entries 0..m-1 of each array): depths, means2d (m2x, m2y), conics (con0..2) and
-    radii (rx, ry) from the centres at time t (mx, my, mz), quaternions, scales (exp(log
-    scales)), log(opacity / ALPHA_MIN) and opacities.
+    """The projection of a block of m Gaussians (entries 0..m-1 of each array): depths, means2d
+    (m2x, m2y), conics (con0..2) and radii (rx, ry) from the centres at time t (mx, my, mz),
+    quaternions, scales (exp(log scales)), log(opacity / ALPHA_MIN) and opacities.
 
     One 1D array per quantity (structure of arrays), no library calls and no branches (both
     sides computed, one selected), so that LLVM vectorises the loop on AVX2 and AVX-512 alike;
     an [N, k] array read or written at k i + c keeps it scalar on AVX2 (cost model) and,
     without extra runtime checks, on AVX-512. Lanes never reorder the arithmetic (no
-    fast-math): the results are those of the scalar loop."""
-    width, height, fx, fy, cx, cy = cam[CAM_W], cam[CAM_H], cam[CAM_FX], cam[CAM_FY], cam[CAM_CX], cam[CAM_CY]
-    near, eps = cam[CAM_NEAR], cam[CAM_EPS2D]
-    lims = (cam[CAM_LOX], cam[CAM_HIX], cam[CAM_LOY], cam[CAM_HIY])
-    V = _affine(view)
-    W = (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
+    fast-math): every non-NaN result is the scalar loop's (see the module docstring)."""
+    width, height, cx, cy = cam[CAM_W], cam[CAM_H], cam[CAM_CX], cam[CAM_CY]
+    fx, fy, near, eps, lims = _cam_values(cam)
+    V, W = _affine(view)
     for j in range(m):
         i = np.uint64(j)  # unsigned: no negative-index wrap-around in the loop
         px, py, pz, z, u, v, u_c, v_c, ca, cb, cc, qn, R, cov_cam, jac = _geometry(
@@ -489,12 +495,6 @@ def _projection_grads(i, V, W, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radi
     )
 
 
-@njit(inline="always", **JIT)
-def _cam_values(cam):
-    """(fx, fy, near, eps2d, (lo x/z, hi x/z, lo y/z, hi y/z)) of a camera row."""
-    return cam[CAM_FX], cam[CAM_FY], cam[CAM_NEAR], cam[CAM_EPS2D], (cam[CAM_LOX], cam[CAM_HIX], cam[CAM_LOY], cam[CAM_HIY])
-
-
 @njit(**JIT)
 def _position_block_backward(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x,
                              g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths, g_mtx, g_mty, g_mtz,
@@ -504,8 +504,7 @@ def _position_block_backward(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s
     fewer than eight arrays written: with more, LLVM gives up the runtime overlap checks that
     vectorising needs, so the shape gradients have a loop of their own."""
     c = _cam_values(cam)
-    V = _affine(view)
-    W = (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
+    V, W = _affine(view)
     for j in range(m):
         i = np.uint64(j)  # unsigned: no negative-index wrap-around in the loop
         gpx, gpy, gpz, _, _, _, _, _, _, _ = _projection_grads(
@@ -524,8 +523,7 @@ def _shape_block_backward(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, 
     """The gradients of the log scales and quaternions of a block of m Gaussians
     (``_projection_grads``; see ``_position_block_backward``)."""
     c = _cam_values(cam)
-    V = _affine(view)
-    W = (V[0], V[1], V[2], V[4], V[5], V[6], V[8], V[9], V[10])
+    V, W = _affine(view)
     for j in range(m):
         i = np.uint64(j)
         _, _, _, gr_ls0[i], gr_ls1[i], gr_ls2[i], gr_qw[i], gr_qx[i], gr_qy[i], gr_qz[i] = _projection_grads(
