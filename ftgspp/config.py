@@ -151,6 +151,7 @@ class TrainConfig:
     log_every: int = 50
     checkpoint_every: int = 1_000
     diagnostics: bool = True  # lifetime / velocity / x-t / motion-error plots after evaluation
+    diagnostics_figures: bool = True  # draw the diagnostics' PNGs (their numbers are measured either way)
     # LPIPS networks scored at evaluation (both input conventions each); VGG16 costs ~10x AlexNet
     eval_lpips: list[str] = field(default_factory=lambda: ["alex", "vgg"])
     out_dir: str = "."

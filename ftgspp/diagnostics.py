@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -143,12 +144,14 @@ def run_diagnostics(
     split: float = 0.5,
     row: int | None = None,
     backend: str | None = None,
+    figures: bool = True,
 ) -> DiagnosticsResult:
     """Write every diagnostic PNG and ``diagnostics.json`` into ``out_dir``; return the numbers.
 
     ``camera`` (index into ``scene.cameras``) defaults to the first test camera, ``frame``
     to the middle frame, ``row`` (x–t slice) to the middle image row. ``motion`` and
-    ``scores`` are measured on scenes with ground truth only.
+    ``scores`` are measured on scenes with ground truth only. ``figures=False`` measures the
+    same numbers and writes only ``diagnostics.json`` (drawing is most of the time).
     """
     from ftgspp import diagnostics_plots as plots
 
@@ -167,6 +170,10 @@ def run_diagnostics(
     where = f"{cam.name}, frame {frame} (t = {t:.3f} s)"
     files: dict[str, Path] = {}
 
+    def draw(name: str, plot: Callable[..., Path], *args: object) -> None:
+        if figures:
+            files[name] = plot(*args)
+
     # lifetimes
     frac = lifetime_fractions(model, theta, scene.duration)
     counts, edges = lifetime_histogram(frac)
@@ -179,23 +186,25 @@ def run_diagnostics(
         "n_persistent": int(np.isinf(frac).sum()),
         "median_fraction": float(np.median(frac)) if len(frac) else float("nan"),
     }
-    files["lifetime_histogram"] = plots.plot_lifetime_histogram(
-        counts, edges, frac, split, theta, scene.duration, out / "lifetime_histogram.png")
+    draw("lifetime_histogram", plots.plot_lifetime_histogram,
+         counts, edges, frac, split, theta, scene.duration, out / "lifetime_histogram.png")
 
-    # group renders
-    gt_img = scene.image(cam_i, frame)
-    groups = {"all Gaussians": np.ones(len(frac), bool), f"short-lived (Δt/T < {split:g})": frac < split,
-              f"long-lived (Δt/T ≥ {split:g})": frac >= split}  # fmt: skip
-    renders = {}
-    for name, keep in groups.items():
-        sub = subset_model(model, keep)
-        renders[f"{name}: {int(keep.sum())}"] = render_frames(sub, cam, np.array([t]), sh, bg, backend)[0]
-    files["lifetime_groups"] = plots.plot_group_renders(gt_img, renders, where, out / "lifetime_groups.png")
+    # group renders (a figure only)
+    if figures:
+        groups = {"all Gaussians": np.ones(len(frac), bool), f"short-lived (Δt/T < {split:g})": frac < split,
+                  f"long-lived (Δt/T ≥ {split:g})": frac >= split}  # fmt: skip
+        renders = {}
+        for name, keep in groups.items():
+            sub = subset_model(model, keep)
+            renders[f"{name}: {int(keep.sum())}"] = render_frames(sub, cam, np.array([t]), sh, bg, backend)[0]
+        draw("lifetime_groups", plots.plot_group_renders, scene.image(cam_i, frame), renders, where,
+             out / "lifetime_groups.png")
 
     # velocity map
-    rgb = render_frames(model, cam, np.array([t]), sh, bg, backend)[0]
     flow, alpha = velocity_map(model, cam, t, scene.fps, backend)
-    files["velocity_map"] = plots.plot_velocity_map(rgb, flow, alpha > ALPHA_MIN, where, out / "velocity_map.png")
+    if figures:
+        rgb = render_frames(model, cam, np.array([t]), sh, bg, backend)[0]
+        draw("velocity_map", plots.plot_velocity_map, rgb, flow, alpha > ALPHA_MIN, where, out / "velocity_map.png")
     speed = np.linalg.norm(flow, axis=-1)[alpha > ALPHA_MIN]
     velocity = {"mean": float(speed.mean()) if speed.size else 0.0,
                 "p99": float(np.percentile(speed, 99)) if speed.size else 0.0}
@@ -204,7 +213,7 @@ def run_diagnostics(
     gt_xt = xt_slice(scene.frames(cam_i), row).astype(np.float32) / 255.0
     all_frames = render_frames(model, cam, scene.times, sh, bg, backend)  # [F, H, W, 3]
     render_xt = xt_slice(all_frames, row)
-    files["xt_slice"] = plots.plot_xt_slice(gt_xt, render_xt, cam.name, row, scene.fps, out / "xt_slice.png")
+    draw("xt_slice", plots.plot_xt_slice, gt_xt, render_xt, cam.name, row, scene.fps, out / "xt_slice.png")
     result = DiagnosticsResult(camera=cam.name, frame=frame, theta=theta, split=split, row=row, lifetime=lifetime,
                                velocity_px_per_frame=velocity, xt_slice_mae=float(np.abs(gt_xt - render_xt).mean()),
                                files=files)  # fmt: skip
@@ -215,8 +224,8 @@ def run_diagnostics(
         motion, maps = scene_motion_error(model, scene, cam_i, gt, backend=backend)
         result.motion = motion
         v, a = maps[frame]
-        files["motion_error"] = plots.plot_motion_error(
-            v, a > ALPHA_MIN, gt.flow3d[frame], gt.objects[frame], motion, where, out / "motion_error.png")
+        draw("motion_error", plots.plot_motion_error,
+             v, a > ALPHA_MIN, gt.flow3d[frame], gt.objects[frame], motion, where, out / "motion_error.png")
         gts = {cam_i: gt}
         for c in scene.train_ids:
             g = load_ground_truth(scene, c)

@@ -175,7 +175,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     diag_files: list[Path] = []
     if cfg.diagnostics:  # lifetime / velocity / x-t / motion-error plots and the numbers studies tabulate
         clock = time.perf_counter()
-        diag = run_diagnostics(model, scene, cfg, out_dir / "diagnostics")
+        diag = run_diagnostics(model, scene, cfg, out_dir / "diagnostics", figures=cfg.diagnostics_figures)
         metrics.update(diag.metrics())
         metrics["diagnostics_seconds"] = time.perf_counter() - clock
         diag_files = list(diag.files.values())

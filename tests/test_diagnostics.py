@@ -272,6 +272,12 @@ def test_run_diagnostics_writes_readable_outputs(tmp_path):
     # motion: only silhouette pixels (mixed object / wall velocity) contribute to the error
     assert saved["motion"]["leak_static"] < 0.1 * np.linalg.norm(V_OBJ)
     assert saved["motion"]["epe_dynamic"] < 0.1 * np.linalg.norm(V_OBJ)
+    # without figures: the same numbers, only diagnostics.json written
+    bare = run_diagnostics(model, scene, cfg, tmp_path / "bare", frame=1, figures=False)
+    assert set(bare.files) == {"json"} and sorted(p.name for p in (tmp_path / "bare").iterdir()) == ["diagnostics.json"]
+    np.testing.assert_equal(bare.metrics(), res.metrics())  # NaN where a score has no pixels
+    bare_saved = json.loads((tmp_path / "bare" / "diagnostics.json").read_text())
+    assert bare_saved.pop("files") == {} and bare_saved == {k: v for k, v in saved.items() if k != "files"}
 
 
 def test_diagnose_cli_on_a_generated_scene(tmp_path, capsys):

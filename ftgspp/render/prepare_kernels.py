@@ -399,7 +399,6 @@ def prepare_forward(
             conics[i, 0], conics[i, 1], conics[i, 2] = con0[b], con1[b], con2[b]
             radii[i, 0], radii[i, 1] = rad[0, b], rad[1, b]
             # colour along the (twice normalised, as view.py then sh.py do) viewing direction
-            n_dim = sh0.shape[2]
             d1x, d1y, d1z, _ = _normalise(mx[b] - centre[0], my[b] - centre[1], mz[b] - centre[2], F_EPS_DIR)
             dx, dy, dz, _ = _normalise(d1x, d1y, d1z, F_EPS_SH)
             _basis(sh_degree, dx, dy, dz, basis)
@@ -499,8 +498,8 @@ def _projection_grads(i, V, W, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radi
 def _position_block_backward(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x,
                              g_m2x, g_m2y, g_con0, g_con1, g_con2, g_depths, g_mtx, g_mty, g_mtz,
                              g_mx, g_my, g_mz):  # fmt: skip
-    """g_m* = g_mt* + what the projection of a block of Gaussians sends back to their centres at
-    time t (``_projection_grads``), for a block of m Gaussians. One 1D array per quantity, as in ``_project_block``, and
+    """g_m* = g_mt* + what the projection of a block of m Gaussians sends back to their centres
+    at time t (``_projection_grads``). One 1D array per quantity, as in ``_project_block``, and
     fewer than eight arrays written: with more, LLVM gives up the runtime overlap checks that
     vectorising needs, so the shape gradients have a loop of their own."""
     c = _cam_values(cam)
@@ -594,7 +593,7 @@ def prepare_backward(
                 t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
             )
             temporal[0, b], temporal[1, b], temporal[2, b], temporal[3, b], temporal[4, b] = dt, s, a, gv, phi
-            _gaussian_rows(i, i - lo, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
+            _gaussian_rows(i, b, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
             radii_x[b] = radii[i, 0]
             g_m2x[b], g_m2y[b] = g_means2d[i, 0], g_means2d[i, 1]
             g_con0[b], g_con1[b], g_con2[b] = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
@@ -611,8 +610,6 @@ def prepare_backward(
         basis = np.empty(16, np.float32)
         g_basis = np.empty(16, np.float32)
         for i in range(lo, hi):
-            n_dim = sh0.shape[2]
-            n_bases = (sh_degree + 1) * (sh_degree + 1)
             b = i - lo
             dt, s, a, gv, phi = temporal[0, b], temporal[1, b], temporal[2, b], temporal[3, b], temporal[4, b]
             gr_ls[i, 0], gr_ls[i, 1], gr_ls[i, 2] = gr_ls0[b], gr_ls1[b], gr_ls2[b]

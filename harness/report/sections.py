@@ -232,8 +232,25 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
     return made
 
 
+def _diagnostic_files(data: ReportData, runs: pd.DataFrame, patterns: list[str]) -> tuple[pd.Series, list[str]] | None:
+    """The lowest seed of ``runs`` that logged a figure the study shows (only a study's first
+    seed draws them), else the lowest that logged any matching file; with those files."""
+    fallback = None
+    for _, r in runs.iterrows():
+        try:
+            files = data.store.artifact_files(r.run_id, "diagnostics")
+        except Exception:  # no diagnostics logged, or an artifact store we cannot list
+            continue
+        keep = [f for f in files if any(fnmatch.fnmatch(Path(f).name, p) for p in patterns)]
+        if any(f.endswith(".png") for f in keep):
+            return r, keep
+        if keep and fallback is None:
+            fallback = (r, keep)
+    return fallback
+
+
 def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[Path]]]:
-    """Copy the diagnostic images of the lowest finished seed per (variant, scene) into
+    """Copy the diagnostics of the lowest finished seed with figures per (variant, scene) into
     ``out/diagnostics/<variant>/<scene>/``; returns (variant, scene, seed, files)."""
     if data.store is None:
         return []
@@ -242,12 +259,10 @@ def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[P
     got = []
     ok = data.df[data.df.status == "FINISHED"].sort_values("seed")
     for (v, s), sub in ok.groupby(["variant", "scene"], sort=False):
-        r = sub.iloc[0]
-        try:
-            files = data.store.artifact_files(r.run_id, "diagnostics")
-        except Exception:  # no diagnostics logged, or an artifact store we cannot list
+        found = _diagnostic_files(data, sub, patterns)
+        if found is None:
             continue
-        keep = [f for f in files if any(fnmatch.fnmatch(Path(f).name, p) for p in patterns)]
+        r, keep = found
         paths = []
         for f in keep:
             target = out / "diagnostics" / v / s / Path(f).relative_to("diagnostics")

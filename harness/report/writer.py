@@ -9,7 +9,7 @@ Written files:
   table against the baseline, run counts and the list of failed runs;
 - ``strip_<metric>.png``, ``speed_accuracy.png``, ``stability.png`` as the study asks;
 - ``diagnostics/<variant>/<scene>/...``: diagnostic images the runs logged under the
-  ``diagnostics/`` artifact path (lowest finished seed per cell);
+  ``diagnostics/`` artifact path (lowest finished seed with figures per cell);
 - ``runs.csv`` (one row per run) and ``summary.csv`` (mean, std, CI, t, p per cell);
 - ``index.md``: question, exact commands, config hashes, links to all of the above;
 - ``claims.csv`` and a "Claims" section in ``table.md``, ``table.tex`` and ``index.md``: each
@@ -106,7 +106,7 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
             lines += [f"### {caption}", "", f"![{caption}]({p.relative_to(out).as_posix()})", ""]
     if diags:
         lines += ["## Diagnostics", "",
-                  "Logged by the runs under the `diagnostics/` artifact path (lowest finished seed).", ""]
+                  "Logged by the runs under the `diagnostics/` artifact path (lowest finished seed with figures).", ""]
         for v, s, seed, paths in diags:
             lines += [f"### {v} / {s} (seed {seed})", ""]
             lines += [_embed(p, out) for p in paths] + [""]

@@ -57,6 +57,8 @@ def expand(study: StudySpec, sel: Selection) -> list[RunSpec]:
 
     A scene may name its own seed count and the subset of variants run on it (ladder rungs
     with fewer seeds, a tuning scene with its own sweep); ``--seeds`` sets every scene's.
+    Only the first seed's runs draw the diagnostics' figures (the reports show that seed's);
+    every run measures their numbers.
     """
     prof = study.profile(sel.profile)
     for o in sel.overrides:
@@ -84,6 +86,7 @@ def expand(study: StudySpec, sel: Selection) -> list[RunSpec]:
                     *prof.overrides,
                     *scene.data_overrides(),
                     *prof.variants[variant],
+                    *([] if r == 0 else ["diagnostics_figures=false"]),
                     *sel.overrides,
                     f"seed={seed}",
                 )

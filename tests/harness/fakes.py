@@ -46,10 +46,13 @@ def fake_train(cfg: TrainConfig, out_dir: Path, tracker: Tracker) -> RunResult:
     time.sleep(float(os.environ.get("FAKE_TRAIN_SLEEP", "0")))
     for step in range(LOSS_STEPS):
         tracker.log_metrics({"loss": 1.0 / (step + 1), "l1": 0.5 / (step + 1)}, step=step)
-    diag = Path(out_dir) / "diagnostics" / "lifetime_hist.png"
-    diag.parent.mkdir(parents=True, exist_ok=True)
-    diag.write_bytes(b"\x89PNG\r\n\x1a\n fake")
-    tracker.log_artifact(diag, "diagnostics")
+    diag = Path(out_dir) / "diagnostics"
+    diag.mkdir(parents=True, exist_ok=True)
+    (diag / "diagnostics.json").write_text("{}")
+    tracker.log_artifact(diag / "diagnostics.json", "diagnostics")
+    if cfg.diagnostics_figures:  # as the trainer: only the figures depend on it
+        (diag / "lifetime_hist.png").write_bytes(b"\x89PNG\r\n\x1a\n fake")
+        tracker.log_artifact(diag / "lifetime_hist.png", "diagnostics")
     psnr = fake_psnr(cfg)
     metrics = {
         "psnr": psnr,

@@ -25,7 +25,7 @@ def test_flatten_uses_dotted_keys_and_strings() -> None:
 
 def test_hash_ignores_where_and_how_verbosely_a_run_writes() -> None:
     base = TrainConfig()
-    other = dataclasses.replace(base, out_dir="/elsewhere", log_every=3, progress=False)
+    other = dataclasses.replace(base, out_dir="/elsewhere", log_every=3, progress=False, diagnostics_figures=False)
     other.tracking.uri = "http://127.0.0.1:5000"
     assert _hash(base) == _hash(other)
 

@@ -158,6 +158,24 @@ def test_crashed_and_killed_runs_are_failed_then_rerun(workdir: Path) -> None:
     assert taker.tags["lease.took_over"] == zombie
 
 
+def test_only_the_first_seed_draws_figures_and_reports_show_the_lowest_seed_that_did(
+        workdir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    Path("crash_seed0").write_text("")  # the first run of seed 0 (baseline's) crashes
+    _run(Selection(variants=["baseline", "cc"], seeds=3))
+    runs = _runs()
+    for rec in runs:
+        assert rec.params["diagnostics_figures"] == ("true" if rec.tags["seed"] == "0" else "false")
+    assert {(r.tags["variant"], r.tags["seed"]) for r in runs if r.status == "FAILED"} == {("baseline", "0")}
+    use_fakes(monkeypatch)
+    from harness.cli.study import main
+
+    assert main(["report", "toy"]) == 0
+    diag = workdir / "outputs" / "reports" / "toy" / "diagnostics"
+    assert (diag / "cc" / "easy" / "lifetime_hist.png").is_file()  # seed 0 finished: its figures
+    # baseline's seed 0 crashed and later seeds draw none: nothing the study shows ("lifetime*")
+    assert not (diag / "baseline").exists()
+
+
 def test_parallel_jobs_lose_nothing_and_match_serial(toy, tmp_path: Path, mlflow_template: Path,
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     serial = {r.key: r.metrics for r in toy["records"] if r.status == "FINISHED"}
