@@ -17,9 +17,10 @@ from typing import Any
 from ftgspp.config import TrainConfig
 from ftgspp.runtime.determinism import effective_threads
 
-# Keys that never change what a run computes: output location, logging cadence,
-# tracking destination, caches, whether the diagnostics' figures are drawn. The thread count is NOT one of them: CPU reductions sum in
-# a thread-count dependent order, so it is hashed (as the count actually used, see below).
+# Keys that never change what a run computes: output location, logging cadence, tracking
+# destination, caches, whether the diagnostics' figures are drawn. The thread count is NOT one
+# of them: CPU reductions sum in a thread-count dependent order, so it is hashed (as the count
+# actually used, see below).
 HASH_EXCLUDED = frozenset(
     {
         "out_dir",
