@@ -39,7 +39,7 @@ import sys
 from dataclasses import dataclass
 from functools import lru_cache, partial
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -90,15 +90,24 @@ def _blur(x: Tensor, window: Tensor, padding: int) -> Tensor:
     return F.conv2d(x, window.view(1, 1, 1, k).expand(c, 1, 1, k), padding=(0, padding), groups=c)
 
 
-def _ssim_map(x: Tensor, y: Tensor, data_range: float, padding: int) -> Tensor:
-    """SSIM map. x, y [N, C, H, W] -> [N, C, H', W'] (population covariances, Wang et al. 2004)."""
+def _ssim_maps(x: Tensor, y: Tensor, data_ranges: Sequence[float], padding: int) -> list[Tensor]:
+    """SSIM maps at each data range. x, y [N, C, H, W] -> [N, C, H', W'] each (population
+    covariances, Wang et al. 2004). The local moments do not depend on the range: one blur."""
     window = _gaussian_1d(SSIM_WINDOW, SSIM_SIGMA, x.dtype, str(x.device))
     c = x.shape[1]
     stats = _blur(torch.cat([x, y, x * x, y * y, x * y], dim=1), window, padding)
     mx, my, mxx, myy, mxy = stats.split(c, dim=1)
     vx, vy, vxy = mxx - mx * mx, myy - my * my, mxy - mx * my
-    c1, c2 = (SSIM_K1 * data_range) ** 2, (SSIM_K2 * data_range) ** 2
-    return ((2 * mx * my + c1) * (2 * vxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))
+    maps = []
+    for data_range in data_ranges:
+        c1, c2 = (SSIM_K1 * data_range) ** 2, (SSIM_K2 * data_range) ** 2
+        maps.append(((2 * mx * my + c1) * (2 * vxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2)))
+    return maps
+
+
+def _ssim_map(x: Tensor, y: Tensor, data_range: float, padding: int) -> Tensor:
+    """SSIM map at one data range (``_ssim_maps``)."""
+    return _ssim_maps(x, y, (data_range,), padding)[0]
 
 
 def _nchw(img: Tensor) -> Tensor:
@@ -119,12 +128,18 @@ def psnr(a: Tensor, b: Tensor) -> Tensor:
 
 def ssim(a: Tensor, b: Tensor, data_range: float = 1.0) -> Tensor:
     """Evaluation SSIM (skimage-compatible, see module doc). [H, W, C] -> scalar, [B, H, W, C] -> [B]."""
+    return ssims(a, b, (data_range,))[0]
+
+
+def ssims(a: Tensor, b: Tensor, data_ranges: Sequence[float]) -> list[Tensor]:
+    """``ssim`` at each of ``data_ranges`` from one computation of the local moments: each the
+    same value as ``ssim`` at that range, for about the cost of one."""
     _check_pair(a, b)
     (a, batched), (b, _) = _as_batch(a), _as_batch(b)
     if min(a.shape[1], a.shape[2]) < SSIM_WINDOW:
         raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {tuple(a.shape[1:3])}")
-    out = _ssim_map(_nchw(a), _nchw(b), data_range, padding=0).flatten(1).mean(dim=1)
-    return out if batched else out[0]
+    means = [m.flatten(1).mean(dim=1) for m in _ssim_maps(_nchw(a), _nchw(b), data_ranges, padding=0)]
+    return means if batched else [m[0] for m in means]
 
 
 def ssim_same(a: Tensor, b: Tensor, data_range: float = 1.0) -> Tensor:
@@ -257,6 +272,7 @@ METRICS: dict[str, Metric] = {
 
 # D-SSIM metrics and the SSIM each is computed from ((1 - ssim) / 2, as ``dssim`` does)
 _FROM_SSIM = {"dssim1": "ssim1", "dssim2": "ssim2"}
+_SSIM_RANGES = {"ssim1": 1.0, "ssim2": 2.0}  # what _ssim computes for each, in double precision
 
 
 def available_metrics(lpips: Mapping[str, torch.nn.Module] | None = None) -> list[str]:
@@ -288,9 +304,13 @@ def evaluate_images(
         if METRICS[name].lpips_net is not None and METRICS[name].lpips_net not in models:
             raise KeyError(f"metric '{name}' needs the LPIPS '{METRICS[name].lpips_net}' model")
     sums = dict.fromkeys(names, 0.0)
+    # the SSIMs these names need, all from one pass over each frame's local moments
+    shared = [s for s in _SSIM_RANGES if s in names or any(_FROM_SSIM.get(n) == s for n in names)]
     for i in range(pred.shape[0]):
         p, g = pred[i : i + 1], gt[i : i + 1]
         values: dict[str, Tensor] = {}
+        if shared:
+            values.update(zip(shared, ssims(p.double(), g.double(), [_SSIM_RANGES[s] for s in shared])))
         for name in names:
             source = _FROM_SSIM.get(name)
             if source is not None and name not in values:  # D-SSIM from this frame's SSIM: one pass, not two

@@ -145,22 +145,24 @@ def test_evaluate_images_averages_per_frame_and_names_keys():
         evaluate_images(pred, gt, names=["lpips_vgg"])
 
 
-def test_evaluate_images_computes_each_ssim_once_and_dssim_bit_for_bit(monkeypatch):
+def test_evaluate_images_blurs_each_frame_once_and_matches_ssim_and_dssim_bit_for_bit(monkeypatch):
     import ftgspp.metrics as m
 
     pairs = reference_pairs()[:2]
     pred = torch.from_numpy(np.stack([a for a, _ in pairs])).float()
     gt = torch.from_numpy(np.stack([b for _, b in pairs])).float()
-    alone = {k: float(np.mean([float(dssim(p.double(), g.double(), r)) for p, g in zip(pred, gt)]))
-             for k, r in (("dssim1", 1.0), ("dssim2", 2.0))}  # dssim on its own, as before
+    alone = {}  # each metric on its own, as before the ranges shared their moments
+    for r in (1.0, 2.0):
+        alone[f"ssim{r:g}"] = float(np.mean([float(ssim(p.double(), g.double(), r)) for p, g in zip(pred, gt)]))
+        alone[f"dssim{r:g}"] = float(np.mean([float(dssim(p.double(), g.double(), r)) for p, g in zip(pred, gt)]))
     calls = []
-    real = m._ssim_map
-    monkeypatch.setattr(m, "_ssim_map", lambda *a, **k: calls.append(1) or real(*a, **k))
-    for names in (["dssim1", "ssim1", "dssim2"], ["ssim2", "dssim2"]):
+    real = m._blur
+    monkeypatch.setattr(m, "_blur", lambda *a, **k: calls.append(1) or real(*a, **k))
+    for names in (["dssim1", "ssim1", "dssim2"], ["ssim2", "dssim2"], ["ssim1", "ssim2", "dssim1", "dssim2"], ["psnr"]):
         calls.clear()
         values = evaluate_images(pred, gt, names=names)
-        assert len(calls) == len({n.removeprefix("d") for n in names}) * len(pred)  # one SSIM per range and frame
-        assert all(values[k] == alone[k] for k in names if k in alone)  # the same bits as dssim alone
+        assert len(calls) == (len(pred) if names != ["psnr"] else 0)  # one blur per frame for every range
+        assert all(values[k] == alone[k] for k in names if k in alone)  # the same bits as each alone
 
 
 def test_evaluate_images_with_lpips_has_every_convention(lpips_models):
