@@ -197,14 +197,14 @@ def run_diagnostics(
         for name, keep in groups.items():
             sub = subset_model(model, keep)
             renders[f"{name}: {int(keep.sum())}"] = render_frames(sub, cam, np.array([t]), sh, bg, backend)[0]
-        draw("lifetime_groups", plots.plot_group_renders, scene.image(cam_i, frame), renders, where,
-             out / "lifetime_groups.png")
+        files["lifetime_groups"] = plots.plot_group_renders(scene.image(cam_i, frame), renders, where,
+                                                            out / "lifetime_groups.png")
 
     # velocity map
     flow, alpha = velocity_map(model, cam, t, scene.fps, backend)
     if figures:
         rgb = render_frames(model, cam, np.array([t]), sh, bg, backend)[0]
-        draw("velocity_map", plots.plot_velocity_map, rgb, flow, alpha > ALPHA_MIN, where, out / "velocity_map.png")
+        files["velocity_map"] = plots.plot_velocity_map(rgb, flow, alpha > ALPHA_MIN, where, out / "velocity_map.png")
     speed = np.linalg.norm(flow, axis=-1)[alpha > ALPHA_MIN]
     velocity = {"mean": float(speed.mean()) if speed.size else 0.0,
                 "p99": float(np.percentile(speed, 99)) if speed.size else 0.0}

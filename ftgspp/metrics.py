@@ -313,9 +313,7 @@ def evaluate_images(
             values.update(zip(shared, ssims(p.double(), g.double(), [_SSIM_RANGES[s] for s in shared])))
         for name in names:
             source = _FROM_SSIM.get(name)
-            if source is not None and name not in values:  # D-SSIM from this frame's SSIM: one pass, not two
-                if source not in values:
-                    values[source] = METRICS[source].fn(p, g, models)
+            if source is not None:  # D-SSIM from this frame's SSIM (in ``shared``): one pass, not two
                 values[name] = dssim_from_ssim(values[source])  # what dssim computes: the same bits
             elif name not in values:
                 values[name] = METRICS[name].fn(p, g, models)
