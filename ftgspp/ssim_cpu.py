@@ -98,8 +98,9 @@ def ssim_forward(
     two = np.float32(2.0)
     for r in prange(rows):
         m = np.empty((5, length), np.float32)
+        smap = np.empty(length, np.float32)  # the row of the SSIM map, summed below
         _filter_column(hx, r, height, taps, m)
-        total = 0.0
+        # the map's loop is free of the float64 sum, so LLVM vectorises it (same values)
         for j in range(length):
             mx, my = m[0, j], m[1, j]
             vx = m[2, j] - mx * mx
@@ -110,7 +111,7 @@ def ssim_forward(
             b1 = mx * mx + my * my + c1
             b2 = vx + vy + c2
             s = (a1 * a2) / (b1 * b2)
-            total += s
+            smap[j] = s
             if want_grad:
                 inv = np.float32(1.0) / (b1 * b2)
                 d_a1 = a2 * inv
@@ -123,6 +124,9 @@ def ssim_forward(
                 partials[1, r, j] = two * (mx * (d_a1 - d_a2) + my * (d_b1 - d_b2))
                 partials[2, r, j] = d_b2
                 partials[3, r, j] = two * d_a2
+        total = 0.0
+        for j in range(length):  # float64, in pixel order
+            total += smap[j]
         row_sums[r] = total
     return row_sums, partials
 

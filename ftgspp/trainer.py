@@ -37,6 +37,7 @@ from ftgspp.evaluate import check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, logged_photometric, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
+from ftgspp.optim import adam_step, plain_fused_adam
 from ftgspp.render import BACKENDS
 from ftgspp.runtime import enter, needs_child, train_in_child
 from ftgspp.runtime.child import check_dispatch
@@ -213,6 +214,7 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
         log.info("run already complete; evaluation only")
     bar = tqdm(range(start, cfg.iterations), initial=start, total=cfg.iterations, disable=not cfg.progress,
                desc="train", unit="it", dynamic_ncols=True, mininterval=1.0)
+    fast_adam = plain_fused_adam(st.optimizer)  # optimizer.step()'s bits with less Python (ftgspp.optim)
     t_session = time.perf_counter()
     t0 = t_session - st.elapsed  # the clock counts training seconds across resumes
     for it in bar:
@@ -233,7 +235,10 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
         if out.means2d.grad is not None:
             st.relocator.accumulate(st.reloc_stats, out.means2d.grad, out.radii)
         set_learning_rates(st.optimizer, it, cfg)
-        st.optimizer.step()
+        if fast_adam:
+            adam_step(st.optimizer)
+        else:
+            st.optimizer.step()
         st.optimizer.zero_grad(set_to_none=True)
         if st.relocator.due(step):
             moved = st.relocator.step(st.model.params, st.optimizer, st.reloc_stats, st.reloc_gen)

@@ -42,6 +42,7 @@ SEAMS: tuple[tuple[str, str], ...] = (
     ("SSIM backward", "ftgspp.ssim_cpu:_SSIMSame.backward"),
     ("backward (rest)", "torch:Tensor.backward"),
     ("optimizer", "torch.optim:Adam.step"),
+    ("optimizer", "ftgspp.trainer:adam_step"),  # the trainer's own binding of ftgspp.optim.adam_step
     ("relocation (amortised)", "ftgspp.strategy.relocate:Relocator.step"),
     ("relocation statistics", "ftgspp.strategy.relocate:Relocator.accumulate"),
     ("checkpoint", "ftgspp.train_state:TrainState.save"),
