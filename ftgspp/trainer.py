@@ -37,7 +37,7 @@ from ftgspp.evaluate import check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, logged_photometric, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
-from ftgspp.optim import adam_step, plain_fused_adam
+from ftgspp.optim import adam_step, clear_grads, plain_fused_adam
 from ftgspp.render import BACKENDS
 from ftgspp.runtime import enter, needs_child, train_in_child
 from ftgspp.runtime.child import check_dispatch
@@ -239,7 +239,7 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
             adam_step(st.optimizer)
         else:
             st.optimizer.step()
-        st.optimizer.zero_grad(set_to_none=True)
+        clear_grads(st.optimizer)
         if st.relocator.due(step):
             moved = st.relocator.step(st.model.params, st.optimizer, st.reloc_stats, st.reloc_gen)
             st.relocated += int(moved)

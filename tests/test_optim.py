@@ -58,3 +58,14 @@ def test_plain_fused_adam_refuses_what_adam_step_does_not_do() -> None:
     hooked = torch.optim.Adam([p], fused=True)
     hooked.register_step_post_hook(lambda *args: None)
     assert not plain_fused_adam(hooked)
+
+
+def test_clear_grads_drops_every_gradient_as_zero_grad_does() -> None:
+    from ftgspp.optim import clear_grads
+
+    ps = [torch.nn.Parameter(torch.ones(2)) for _ in range(3)]
+    opt = torch.optim.Adam([{"params": ps[:2]}, {"params": ps[2:]}], fused=True)
+    for p in ps:
+        p.grad = torch.ones(2)
+    clear_grads(opt)
+    assert all(p.grad is None for p in ps)

@@ -56,7 +56,10 @@ def depth_sort_keys(depths: np.ndarray) -> np.ndarray:
 
 def f32_array(t: Tensor) -> np.ndarray:
     """Contiguous float32 numpy array of ``t`` (a view when ``t`` already is one, on the CPU)."""
-    return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
+    t = t.detach()
+    if t.dtype != torch.float32 or t.device.type != "cpu":  # the check is cheaper than a no-op .to()
+        t = t.to("cpu", torch.float32)
+    return np.ascontiguousarray(t.numpy())
 
 
 def _forward(

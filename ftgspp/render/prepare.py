@@ -17,6 +17,7 @@ gradients.
 
 from __future__ import annotations
 
+import functools
 from typing import Mapping, NamedTuple
 
 import numpy as np
@@ -47,13 +48,22 @@ class Prepared(NamedTuple):
 
 
 def camera_row(K: Tensor, width: int, height: int, near_plane: float, eps2d: float) -> np.ndarray:
-    """The kernel's camera row (``prepare_kernels.CAM_*``), in project.py's float32 rounding."""
+    """The kernel's camera row (``prepare_kernels.CAM_*``), in project.py's float32 rounding.
+
+    A fresh array each call; the rows of the cameras already seen are remembered (a training run
+    asks for the same few every iteration, and computing one takes ~70 us of small tensor ops)."""
     k = K.detach().to("cpu", torch.float32).numpy()
+    return _camera_row(k.tobytes(), int(width), int(height), float(near_plane), float(eps2d)).copy()
+
+
+@functools.lru_cache(maxsize=256)
+def _camera_row(k_bytes: bytes, width: int, height: int, near_plane: float, eps2d: float) -> np.ndarray:
+    k = np.frombuffer(k_bytes, np.float32).reshape(3, 3)
     row = np.zeros(_pk.N_CAM, np.float32)
     row[_pk.CAM_FX], row[_pk.CAM_FY], row[_pk.CAM_CX], row[_pk.CAM_CY] = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
     row[_pk.CAM_W], row[_pk.CAM_H], row[_pk.CAM_NEAR], row[_pk.CAM_EPS2D] = width, height, near_plane, eps2d
-    lims = tangent_limits(K.detach().to("cpu", torch.float32), width, height)
-    row[_pk.CAM_LOX], row[_pk.CAM_HIX], row[_pk.CAM_LOY], row[_pk.CAM_HIY] = lims
+    row[_pk.CAM_LOX], row[_pk.CAM_HIX], row[_pk.CAM_LOY], row[_pk.CAM_HIY] = tangent_limits(torch.from_numpy(k.copy()),
+                                                                                            width, height)
     return row
 
 
