@@ -219,12 +219,14 @@ def colour_aligned(pred: Tensor, gt: Tensor) -> Tensor:
     """``pred`` after the least-squares affine colour map onto ``gt`` (per image of the batch):
     ``[pred, 1] A`` with ``A`` [4, 3] minimising ‖[pred, 1] A − gt‖², clamped to [0, 1].
     A render that differs from the ground truth by a global colour transform scores as if it
-    did not (the colour-corrected metrics some 3DGS evaluations offer). [B, H, W, 3] -> same."""
-    x = torch.cat([pred.reshape(pred.shape[0], -1, 3), torch.ones_like(pred[..., :1]).reshape(pred.shape[0], -1, 1)],
-                  dim=-1)  # [B, P, 4]
-    y = gt.reshape(gt.shape[0], -1, 3)
-    a = torch.linalg.lstsq(x, y).solution  # [B, 4, 3]
-    return (x @ a).clamp(0, 1).reshape(pred.shape)
+    did not (the colour-corrected metrics some 3DGS evaluations offer). [B, H, W, 3] -> same
+    (fitted in float64, the same bits on every call and machine: ``ftgspp.colour_fit``)."""
+    from ftgspp.colour_fit import colour_aligned_np
+
+    p = pred.detach().to("cpu", torch.float64).reshape(pred.shape[0], -1, 3).numpy()
+    g = gt.detach().to("cpu", torch.float64).reshape(gt.shape[0], -1, 3).numpy()
+    out = np.stack([colour_aligned_np(pi, gi) for pi, gi in zip(p, g)])
+    return torch.from_numpy(out).reshape(pred.shape).to(device=pred.device, dtype=pred.dtype)
 
 
 def _psnr_aligned(p: Tensor, g: Tensor, _: Mapping[str, torch.nn.Module]) -> Tensor:

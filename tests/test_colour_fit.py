@@ -1,0 +1,65 @@
+"""The colour-aligned PSNR's affine fit: least squares' answer (NumPy's ``lstsq`` as the oracle),
+the same bits on every call, and flat renders handled."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from ftgspp.colour_fit import cholesky_solve, colour_aligned_np
+from ftgspp.metrics import METRICS
+
+
+def _oracle(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    x = np.concatenate([pred, np.ones((len(pred), 1))], axis=1)
+    return np.clip(x @ np.linalg.lstsq(x, gt, rcond=None)[0], 0.0, 1.0)
+
+
+def _frames(seed: int, n: int = 96 * 128) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    gt = rng.random((n, 3))
+    m = np.eye(3) + 0.1 * rng.standard_normal((3, 3))
+    pred = np.clip(gt @ m + 0.05 * rng.standard_normal(3) + 0.03 * rng.standard_normal((n, 3)), 0, 1)
+    return pred, gt
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fit_matches_least_squares(seed: int) -> None:
+    pred, gt = _frames(seed)
+    np.testing.assert_allclose(colour_aligned_np(pred, gt), _oracle(pred, gt), rtol=0, atol=1e-11)
+
+
+def test_low_contrast_render_still_matches_least_squares() -> None:
+    pred, gt = _frames(3)
+    dim = 0.5 + 0.01 * pred  # colours squeezed into 1 % of the range: a badly conditioned fit
+    np.testing.assert_allclose(colour_aligned_np(dim, gt), _oracle(dim, gt), rtol=0, atol=1e-8)
+
+
+def test_flat_and_grey_renders_fall_back_to_the_minimum_norm_fit() -> None:
+    _, gt = _frames(4)
+    flat = np.full_like(gt, 0.3)  # one colour: only the mean of gt can be fitted
+    np.testing.assert_allclose(colour_aligned_np(flat, gt), np.broadcast_to(gt.mean(axis=0), gt.shape), atol=1e-12)
+    grey = np.repeat(np.random.default_rng(5).random((len(gt), 1)), 3, axis=1)  # rank 2
+    np.testing.assert_allclose(colour_aligned_np(grey, gt), _oracle(grey, gt), atol=1e-10)
+    _, ok = cholesky_solve(np.zeros((4, 4)), np.zeros((4, 3)))
+    assert not ok
+
+
+def test_same_bits_on_every_call_whatever_the_memory_layout() -> None:
+    pred, gt = _frames(6)
+    first = colour_aligned_np(pred, gt)
+    for shift in range(1, 4):  # the same values at other addresses, and from a strided view
+        buf = np.empty(pred.size + shift)
+        moved = buf[shift:].reshape(pred.shape)
+        moved[:] = pred
+        again = colour_aligned_np(moved, np.asfortranarray(gt))
+        assert np.array_equal(first.view(np.uint64), again.view(np.uint64))
+
+
+def test_psnr_cc_is_reproducible_bit_for_bit() -> None:
+    pred, gt = _frames(7)
+    p = torch.from_numpy(pred.reshape(1, 96, 128, 3))
+    g = torch.from_numpy(gt.reshape(1, 96, 128, 3))
+    values = {float(METRICS["psnr_cc"].fn(p.clone(), g.clone(), {})) for _ in range(5)}
+    assert len(values) == 1
