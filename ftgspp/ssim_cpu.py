@@ -33,27 +33,81 @@ RADIUS = 5  # 11 taps
 
 
 @njit(**JIT)
-def _filter_row(src, dst, taps, n_ch):
+def _filter_padded(pad, dst, taps, n_ch):
+    """dst[j] = taps (*) the row that ``pad`` holds from offset RADIUS * n_ch on, with zeros
+    around it (``_padded``): sum over k = 0..10 of taps[k] * pad[j + k n_ch], summed from 0 in
+    that order, kept in a register. Adding the padding's zero products leaves every partial sum
+    as it was, so the values are those of skipping the taps that fall off the row. The indices
+    are unsigned: LLVM then needs no negative-index fix-up and vectorises over j."""
+    c = np.uintp(n_ch)
+    w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10 = (taps[0], taps[1], taps[2], taps[3], taps[4], taps[5],
+                                                   taps[6], taps[7], taps[8], taps[9], taps[10])  # fmt: skip
+    for i in range(dst.shape[0]):
+        j = np.uintp(i)
+        acc = np.float32(0.0)
+        acc += w0 * pad[j]
+        acc += w1 * pad[j + c]
+        acc += w2 * pad[j + np.uintp(2) * c]
+        acc += w3 * pad[j + np.uintp(3) * c]
+        acc += w4 * pad[j + np.uintp(4) * c]
+        acc += w5 * pad[j + np.uintp(5) * c]
+        acc += w6 * pad[j + np.uintp(6) * c]
+        acc += w7 * pad[j + np.uintp(7) * c]
+        acc += w8 * pad[j + np.uintp(8) * c]
+        acc += w9 * pad[j + np.uintp(9) * c]
+        acc += w10 * pad[j + np.uintp(10) * c]
+        dst[j] = acc
+
+
+@njit(**JIT)
+def _padded(length, n_ch):
+    """Scratch for ``_filter_padded``: a row of ``length`` with RADIUS pixels of zeros each side."""
+    return np.zeros(length + 2 * RADIUS * n_ch, np.float32)
+
+
+@njit(**JIT)
+def _filter_row(src, dst, taps, n_ch, pad):
     """dst = taps (*) src along one row of W*C floats, zero padded, channel stride n_ch."""
-    length = src.shape[0]
-    dst[:] = 0.0
-    for k in range(taps.shape[0]):
-        off = (k - RADIUS) * n_ch
-        w = taps[k]
-        j0 = max(0, -off)
-        j1 = min(length, length - off)
-        d = dst[j0:j1]  # slices, so that LLVM sees two plain streams and vectorises
-        s = src[j0 + off : j1 + off]
-        for j in range(j1 - j0):
-            d[j] += w * s[j]
+    o = RADIUS * n_ch
+    for j in range(src.shape[0]):  # a loop, not a slice assignment: Numba's is element by element
+        pad[o + j] = src[j]
+    _filter_padded(pad, dst, taps, n_ch)
 
 
 @njit(**JIT)
 def _filter_column(src, r, height, taps, out):
     """out[q] = taps (*) src[q] down the image column at row r (zero padded at the image's
-    top and bottom; rows of one image are consecutive, ``height`` of them). src [Q, rows, L]."""
-    out[:] = 0.0
+    top and bottom; rows of one image are consecutive, ``height`` of them). src [Q, rows, L].
+
+    Away from the top and bottom, each value is the eleven products summed from 0 in tap order
+    in a register (unsigned indices into one array, so LLVM vectorises over the row); near them,
+    the taps inside the image are added in the same order, row by row."""
     top = r - r % height
+    if r - RADIUS >= top and r + RADIUS < top + height:
+        w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10 = (taps[0], taps[1], taps[2], taps[3], taps[4], taps[5],
+                                                       taps[6], taps[7], taps[8], taps[9], taps[10])  # fmt: skip
+        r0 = np.uintp(r - RADIUS)
+        one = np.uintp(1)
+        for q in range(src.shape[0]):
+            s = src[q]
+            o = out[q]
+            for i in range(o.shape[0]):
+                j = np.uintp(i)
+                acc = np.float32(0.0)
+                acc += w0 * s[r0, j]
+                acc += w1 * s[r0 + one, j]
+                acc += w2 * s[r0 + np.uintp(2), j]
+                acc += w3 * s[r0 + np.uintp(3), j]
+                acc += w4 * s[r0 + np.uintp(4), j]
+                acc += w5 * s[r0 + np.uintp(5), j]
+                acc += w6 * s[r0 + np.uintp(6), j]
+                acc += w7 * s[r0 + np.uintp(7), j]
+                acc += w8 * s[r0 + np.uintp(8), j]
+                acc += w9 * s[r0 + np.uintp(9), j]
+                acc += w10 * s[r0 + np.uintp(10), j]
+                o[j] = acc
+        return
+    out[:] = 0.0
     for k in range(taps.shape[0]):
         src_row = r + k - RADIUS
         if src_row < top or src_row >= top + height:
@@ -81,17 +135,21 @@ def ssim_forward(
     with respect to mu_x, mu_y, E[x^2] (= that w.r.t. E[y^2]) and E[xy], each [B * H, W * C]."""
     rows, length = x.shape
     hx = np.empty((5, rows, length), np.float32)  # horizontally filtered x, y, xx, yy, xy
+    o = RADIUS * n_ch
     for r in prange(rows):
-        sq = np.empty((3, length), np.float32)
+        pad = _padded(length, n_ch)
+        xr, yr = x[r], y[r]
+        _filter_row(xr, hx[0, r], taps, n_ch, pad)
+        _filter_row(yr, hx[1, r], taps, n_ch, pad)
         for j in range(length):
-            sq[0, j] = x[r, j] * x[r, j]
-            sq[1, j] = y[r, j] * y[r, j]
-            sq[2, j] = x[r, j] * y[r, j]
-        _filter_row(x[r], hx[0, r], taps, n_ch)
-        _filter_row(y[r], hx[1, r], taps, n_ch)
-        _filter_row(sq[0], hx[2, r], taps, n_ch)
-        _filter_row(sq[1], hx[3, r], taps, n_ch)
-        _filter_row(sq[2], hx[4, r], taps, n_ch)
+            pad[o + j] = xr[j] * xr[j]
+        _filter_padded(pad, hx[2, r], taps, n_ch)
+        for j in range(length):
+            pad[o + j] = yr[j] * yr[j]
+        _filter_padded(pad, hx[3, r], taps, n_ch)
+        for j in range(length):
+            pad[o + j] = xr[j] * yr[j]
+        _filter_padded(pad, hx[4, r], taps, n_ch)
     n_maps = 4 if want_grad else 0
     partials = np.empty((n_maps, rows if want_grad else 0, length), np.float32)
     row_sums = np.empty(rows, np.float64)
@@ -147,8 +205,9 @@ def ssim_backward(
     rows, length = x.shape
     hp = np.empty((4, rows, length), np.float32)
     for r in prange(rows):
+        pad = _padded(length, n_ch)
         for q in range(4):
-            _filter_row(partials[q, r], hp[q, r], taps, n_ch)
+            _filter_row(partials[q, r], hp[q, r], taps, n_ch, pad)
     gx = np.empty((rows if want_x else 0, length), np.float32)
     gy = np.empty((rows if want_y else 0, length), np.float32)
     two = np.float32(2.0)
