@@ -4,7 +4,8 @@ The kernels compile on first use (about a minute on an idle 2-core machine) and 
 disk. A study would otherwise start with every worker compiling them at once and printing
 nothing for minutes; ``study run`` instead checks ``kernels_cached()`` and, when the cache is
 cold, says so and runs ``python -m ftgspp.bench.warmup`` first, which calls every kernel once
-on tiny inputs (the rasterizer forward and backward, the fused prepare node, the SSIM loss).
+on tiny inputs (the rasterizer forward and backward, the fused prepare node, the SSIM loss, the
+colour-aligned PSNR's fit).
 
     python -m ftgspp.bench.warmup        # prints the seconds it took
 """
@@ -16,12 +17,13 @@ import time
 
 
 def _dispatchers() -> list:
-    from ftgspp import ssim_cpu
+    from ftgspp import colour_fit, ssim_cpu
     from ftgspp.render import cpu_kernels, prepare_kernels
 
     return [cpu_kernels.bin_gaussians, cpu_kernels.render_forward, cpu_kernels.render_backward,
             cpu_kernels.reduce_pair_grads, prepare_kernels.prepare_forward, prepare_kernels.prepare_backward,
-            ssim_cpu.ssim_forward, ssim_cpu.ssim_backward]
+            ssim_cpu.ssim_forward, ssim_cpu.ssim_backward, colour_fit.normal_equations, colour_fit.cholesky_solve,
+            colour_fit.apply_affine]
 
 
 def kernels_cached() -> bool:
@@ -35,10 +37,12 @@ def kernels_cached() -> bool:
 
 def warm_up() -> float:
     """Call every kernel once; returns the seconds it took (compile time when the cache was cold)."""
+    import numpy as np
     import torch
 
     from ftgspp.bench.scene import random_scene
     from ftgspp.bench.stages import stage_model
+    from ftgspp.colour_fit import colour_aligned_np
     from ftgspp.metrics import ssim_same
     from ftgspp.render import cpu
     from ftgspp.render.prepare import prepare
@@ -53,6 +57,7 @@ def warm_up() -> float:
                 True, 20.0)
     (p.means2d.sum() + p.colors.sum()).backward()
     (1 - ssim_same(torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3))).backward()
+    colour_aligned_np(np.random.default_rng(0).random((64, 3)), np.random.default_rng(1).random((64, 3)))
     return time.perf_counter() - t0
 
 
