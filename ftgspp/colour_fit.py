@@ -4,11 +4,12 @@
 differed in their last bits between evaluations of one model in one process, so ``psnr_cc``
 did too (docs/benchmarks-history.md, session 38). Here the fit is the normal equations
 ``[x 1]ᵀ[x 1] A = [x 1]ᵀ y`` summed in float64 over the pixels in their order, solved by a
-Cholesky factorisation, and applied pixel by pixel, all in Numba without fast-math: the same
-inputs give the same bits on any machine and at any thread count. The fitted values are those
-of least squares (tested against ``numpy.linalg.lstsq``); for images whose colours do not span
-an affine 3-D space (a flat render), where the normal equations are singular, the fit falls
-back to NumPy's minimum-norm ``lstsq``, whose fitted values are as unique as the projection is.
+Cholesky factorisation that drops a column the earlier ones already explain (a flat or grey
+render: its coefficient is 0, and the fitted values, unique whatever the coefficients, are
+unchanged), and applied pixel by pixel, all in Numba without fast-math: the same inputs give
+the same bits on any machine and at any thread count. The fitted values are those of least
+squares (tested against ``numpy.linalg.lstsq``). A render or ground truth with NaN or infinity
+gives NaN.
 
     from ftgspp.colour_fit import colour_aligned_np
     aligned = colour_aligned_np(pred, gt)   # [P, 3] float64 each -> [P, 3], clamped to [0, 1]
@@ -22,7 +23,7 @@ from numba import njit
 from ftgspp.runtime.jit import JIT
 
 N_FEATURES = 4  # r, g, b, 1
-SINGULAR = 1e-12  # a Cholesky pivot below this fraction of the largest diagonal entry: singular
+DEPENDENT = 1e-9  # a column this fraction or less unexplained by the earlier ones is dropped
 
 
 @njit(**JIT)
@@ -62,20 +63,21 @@ def normal_equations(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 @njit(**JIT)
-def cholesky_solve(g: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, bool]:
-    """``(A, ok)``: the solution of ``G A = R`` for symmetric positive definite ``G`` [n, n]
-    (``R`` [n, m]); ``ok`` is False, and ``A`` meaningless, when a pivot says ``G`` is singular."""
+def cholesky_solve(g: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(A, kept)``: a least-squares solution of ``G A = R`` for a symmetric positive
+    semi-definite ``G`` [n, n] (``R`` [n, m]) by Cholesky, in index order. An index whose pivot
+    is at most ``DEPENDENT`` of its diagonal entry (or whose entry is not positive) depends on
+    the earlier ones: it is dropped (``kept`` False) and its row of ``A`` is 0."""
     n, m = g.shape[0], r.shape[1]
     low = np.zeros((n, n))
-    biggest = 0.0
-    for i in range(n):
-        biggest = max(biggest, g[i, i])
+    kept = np.zeros(n, np.bool_)
     for j in range(n):
         d = g[j, j]
         for k in range(j):
             d -= low[j, k] * low[j, k]
-        if not d > SINGULAR * biggest:  # also catches NaN
-            return np.zeros((n, m)), False
+        if not (g[j, j] > 0.0 and d > DEPENDENT * g[j, j]):  # also catches NaN
+            continue  # column j of low stays 0
+        kept[j] = True
         low[j, j] = np.sqrt(d)
         for i in range(j + 1, n):
             s = g[i, j]
@@ -85,17 +87,19 @@ def cholesky_solve(g: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, bool]:
     a = np.zeros((n, m))
     z = np.zeros(n)
     for c in range(m):
-        for i in range(n):  # L z = r
-            s = r[i, c]
-            for k in range(i):
-                s -= low[i, k] * z[k]
-            z[i] = s / low[i, i]
+        for i in range(n):  # L z = r over the kept indices
+            if kept[i]:
+                s = r[i, c]
+                for k in range(i):
+                    s -= low[i, k] * z[k]
+                z[i] = s / low[i, i]
         for i in range(n - 1, -1, -1):  # Lᵀ a = z
-            s = z[i]
-            for k in range(i + 1, n):
-                s -= low[k, i] * a[k, c]
-            a[i, c] = s / low[i, i]
-    return a, True
+            if kept[i]:
+                s = z[i]
+                for k in range(i + 1, n):
+                    s -= low[k, i] * a[k, c]
+                a[i, c] = s / low[i, i]
+    return a, kept
 
 
 @njit(**JIT)
@@ -110,11 +114,12 @@ def apply_affine(x: np.ndarray, a: np.ndarray) -> np.ndarray:
 
 
 def colour_aligned_np(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """``pred`` [P, 3] after the least-squares affine colour map onto ``gt`` [P, 3], clamped to [0, 1]."""
+    """``pred`` [P, 3] after the least-squares affine colour map onto ``gt`` [P, 3], clamped to
+    [0, 1]; all NaN when either holds a NaN or an infinity, or has no pixels."""
     x = np.ascontiguousarray(pred, dtype=np.float64)
     y = np.ascontiguousarray(gt, dtype=np.float64)
+    if len(x) == 0 or not (np.isfinite(x).all() and np.isfinite(y).all()):
+        return np.full(x.shape, np.nan)
     g, r = normal_equations(x, y)
-    a, ok = cholesky_solve(g, r)
-    if not ok:  # colours in a plane or a point: the minimum-norm solution of the same problem
-        a = np.linalg.lstsq(np.concatenate([x, np.ones((len(x), 1))], axis=1), y, rcond=None)[0]
-    return apply_affine(x, np.ascontiguousarray(a))
+    a, _ = cholesky_solve(g, r)
+    return apply_affine(x, a)

@@ -20,16 +20,26 @@ import torch
 
 def plain_fused_adam(optimizer: torch.optim.Optimizer) -> bool:
     """Whether ``adam_step`` does what ``optimizer.step()`` would: a fused ``Adam`` with none of
-    amsgrad, maximize, weight decay, capturable, gradient scaling or step hooks."""
-    if type(optimizer) is not torch.optim.Adam or getattr(optimizer, "grad_scale", None) is not None:
+    amsgrad, maximize, weight decay, capturable, gradient scaling or step hooks (its own or
+    global), its ``step`` not replaced on the instance, and one device and dtype per group."""
+    if type(optimizer) is not torch.optim.Adam or "step" in vars(optimizer):
         return False
-    if getattr(optimizer, "found_inf", None) is not None or optimizer._optimizer_step_pre_hooks:
+    if getattr(optimizer, "grad_scale", None) is not None or getattr(optimizer, "found_inf", None) is not None:
         return False
-    if optimizer._optimizer_step_post_hooks:
+    from torch.optim import optimizer as torch_optimizer
+
+    if optimizer._optimizer_step_pre_hooks or optimizer._optimizer_step_post_hooks:
         return False
-    return all(g["fused"] and not (g["amsgrad"] or g["maximize"] or g["capturable"] or g["differentiable"]
-                                   or g["decoupled_weight_decay"]) and g["weight_decay"] == 0
-               for g in optimizer.param_groups)
+    if torch_optimizer._global_optimizer_pre_hooks or torch_optimizer._global_optimizer_post_hooks:
+        return False
+    for g in optimizer.param_groups:
+        if not g["fused"] or g["amsgrad"] or g["maximize"] or g["capturable"] or g["differentiable"]:
+            return False
+        if g["decoupled_weight_decay"] or g["weight_decay"] != 0 or torch.is_tensor(g["lr"]):
+            return False
+        if len({(p.device, p.dtype) for p in g["params"]}) > 1:
+            return False
+    return True
 
 
 @torch.no_grad()

@@ -261,5 +261,7 @@ def ssim_same_cpu(a: Tensor, b: Tensor, taps: np.ndarray, c1: float, c2: float) 
 
     ``taps`` [11] float32 is the normalised 1-D Gaussian; ``c1``, ``c2`` the SSIM constants.
     """
+    if taps.dtype != np.float32 or taps.shape != (2 * RADIUS + 1,):  # the kernels sum 11 float32 products
+        raise ValueError(f"taps must be float32 of shape ({2 * RADIUS + 1},), got {taps.dtype} {taps.shape}")
     configure_numba()  # before the first parallel kernel fixes Numba's threading layer
     return _SSIMSame.apply(a.contiguous(), b.contiguous(), taps, c1, c2)

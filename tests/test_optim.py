@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import copy
+
 import torch
+from torch.optim.optimizer import register_optimizer_step_pre_hook
 
 from ftgspp.optim import adam_step, plain_fused_adam
 
@@ -58,6 +61,37 @@ def test_plain_fused_adam_refuses_what_adam_step_does_not_do() -> None:
     hooked = torch.optim.Adam([p], fused=True)
     hooked.register_step_post_hook(lambda *args: None)
     assert not plain_fused_adam(hooked)
+    plain = torch.optim.Adam([p], fused=True)
+    assert plain_fused_adam(plain)
+    handle = register_optimizer_step_pre_hook(lambda *args: None)  # a global hook
+    try:
+        assert not plain_fused_adam(plain)
+    finally:
+        handle.remove()
+    plain.step = lambda *args, **kwargs: None  # patched on the instance, as LR schedulers once did
+    assert not plain_fused_adam(plain)
+    mixed = torch.optim.Adam([p, torch.nn.Parameter(torch.zeros(3, dtype=torch.float64))], fused=True)
+    assert not plain_fused_adam(mixed)
+
+
+def test_adam_step_after_a_checkpoint_matches_torch() -> None:
+    """Resume: state loaded from another optimizer's state_dict, then stepped both ways."""
+    a, opt_a, b, opt_b = _twin_optimizers()
+    gen = torch.Generator().manual_seed(9)
+    for p in a:
+        p.grad = torch.randn(p.shape, generator=gen)
+    opt_a.step()
+    for pa, pb in zip(a, b):
+        pb.data.copy_(pa.data)
+    opt_b.load_state_dict(copy.deepcopy(opt_a.state_dict()))  # as from a checkpoint file
+    for _ in range(3):
+        for pa, pb in zip(a, b):
+            g = torch.randn(pa.shape, generator=gen)
+            pa.grad, pb.grad = g.clone(), g.clone()
+        opt_a.step()
+        adam_step(opt_b)
+    for pa, pb in zip(a, b):
+        assert torch.equal(pa.view(torch.int32), pb.view(torch.int32))
 
 
 def test_clear_grads_drops_every_gradient_as_zero_grad_does() -> None:

@@ -53,12 +53,15 @@ def camera_row(K: Tensor, width: int, height: int, near_plane: float, eps2d: flo
     A fresh array each call; the rows of the cameras already seen are remembered (a training run
     asks for the same few every iteration, and computing one takes ~70 us of small tensor ops)."""
     k = K.detach().to("cpu", torch.float32).numpy()
-    return _camera_row(k.tobytes(), int(width), int(height), float(near_plane), float(eps2d)).copy()
+    # keyed by the float32 bytes the row stores, so that -0.0 and 0.0 are two keys
+    scalars = np.array([near_plane, eps2d], np.float32).tobytes()
+    return _camera_row(k.tobytes(), int(width), int(height), scalars).copy()
 
 
 @functools.lru_cache(maxsize=256)
-def _camera_row(k_bytes: bytes, width: int, height: int, near_plane: float, eps2d: float) -> np.ndarray:
+def _camera_row(k_bytes: bytes, width: int, height: int, scalar_bytes: bytes) -> np.ndarray:
     k = np.frombuffer(k_bytes, np.float32).reshape(3, 3)
+    near_plane, eps2d = np.frombuffer(scalar_bytes, np.float32)
     row = np.zeros(_pk.N_CAM, np.float32)
     row[_pk.CAM_FX], row[_pk.CAM_FY], row[_pk.CAM_CX], row[_pk.CAM_CY] = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
     row[_pk.CAM_W], row[_pk.CAM_H], row[_pk.CAM_NEAR], row[_pk.CAM_EPS2D] = width, height, near_plane, eps2d
