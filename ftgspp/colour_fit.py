@@ -22,7 +22,6 @@ from numba import njit
 
 from ftgspp.runtime.jit import JIT
 
-N_FEATURES = 4  # r, g, b, 1
 DEPENDENT = 1e-9  # a column this fraction or less unexplained by the earlier ones is dropped
 
 
