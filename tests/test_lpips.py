@@ -74,6 +74,40 @@ def test_lpips_is_differentiable_with_respect_to_the_image(lpips_models, ref_ima
     assert pred.grad is not None and torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
 
 
+def _distance_without_memo(model: LPIPS, x0: torch.Tensor, x1: torch.Tensor) -> torch.Tensor:
+    """The LPIPS formula written out: both images through the network, every time."""
+    def taps(x):
+        return [f / (f.pow(2).sum(dim=1, keepdim=True).sqrt() + 1e-10) for f in model.net((x - model.shift) / model.scale)]
+    total = x0.new_zeros(x0.shape[0])
+    for a, b, lin in zip(taps(x0), taps(x1), model.lins):
+        total = total + lin((a - b).pow(2)).mean(dim=(1, 2, 3))
+    return total
+
+
+def test_reference_features_are_remembered_with_the_same_bits(lpips_weights: Path, ref_images):
+    model = load_lpips("alex", lpips_weights)
+    calls = []
+    model.net.register_forward_hook(lambda *_: calls.append(1))
+    gt = 2.0 * ref_images["ref"].permute(2, 0, 1)[None] - 1.0
+    preds = [2.0 * ref_images[k].permute(2, 0, 1)[None] - 1.0 for k in ("p0", "p1", "p0")]
+    for i, pred in enumerate(preds):
+        calls.clear()
+        got = model(pred, gt.clone())  # an equal image at another address hits the memo
+        assert len(calls) == (2 if i == 0 else 1)
+        assert torch.equal(got, _distance_without_memo(model, pred, gt))
+    model.MEMO_BYTES = 1  # nothing fits: computed every time, same bits
+    fresh = load_lpips("alex", lpips_weights)
+    fresh.MEMO_BYTES = 1
+    calls.clear()
+    assert torch.equal(fresh(preds[1], gt), _distance_without_memo(model, preds[1], gt))
+    assert not fresh._memo
+    other = torch.flip(gt, dims=[3])  # other content: its own entry
+    assert torch.equal(model(preds[0], other), _distance_without_memo(model, preds[0], other))
+    pred = preds[1].clone().requires_grad_(True)  # gradients still reach the prediction
+    model(pred, gt).sum().backward()
+    assert pred.grad is not None and pred.grad.abs().sum() > 0
+
+
 def test_tampered_weights_file_is_rejected(lpips_weights: Path, tmp_path: Path):
     for name in WEIGHT_FILES.values():
         shutil.copy(lpips_weights / name, tmp_path / name)

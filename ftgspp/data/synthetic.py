@@ -22,9 +22,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
+import os
 import shutil
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Callable
@@ -395,13 +398,72 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
 
+# Below this many output pixels (cameras x frames x width x height), about 2 s of rendering,
+# starting worker processes costs more than it saves: the scene is rendered in this process.
+PARALLEL_MIN_PIXELS = 4_000_000
+
+
+def synth_workers(cfg: SynthConfig) -> int:
+    """Processes that render a scene's cameras side by side: one per CPU this process may use
+    (``FTGSPP_SYNTH_WORKERS`` overrides), at most one per camera, and one for a small scene
+    (``PARALLEL_MIN_PIXELS``)."""
+    env = os.environ.get("FTGSPP_SYNTH_WORKERS", "")
+    if env.isdigit() and int(env) > 0:
+        n = int(env)
+    elif cfg.n_cameras * cfg.n_frames * cfg.width * cfg.height < PARALLEL_MIN_PIXELS:
+        n = 1
+    else:
+        n = len(os.sched_getaffinity(0))
+    return max(1, min(n, cfg.n_cameras))
+
+
+def _map_cameras(fn: Callable, tasks: list[tuple], workers: int) -> list:
+    """``[fn(*t) for t in tasks]``, in order, over ``workers`` spawned processes. Each camera
+    is a deterministic function of its task alone (its noise has its own seed), so the files
+    are the same for any number of workers."""
+    workers = max(1, min(workers, len(tasks)))
+    if workers == 1:
+        return [fn(*t) for t in tasks]
+    # spawn: the caller may hold OpenMP threads (torch, Numba), which a fork would break
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return list(pool.map(fn, *zip(*tasks)))
+
+
+def _write_camera(out: Path, layout: str, cfg: SynthConfig, content: SceneContent, cam: Camera, ci: int,
+                  transform: tuple[np.ndarray, np.ndarray], gains: np.ndarray | None, lens: object | None,
+                  transient_labels: list[int]) -> tuple[tuple[float, float], dict[int, list[int]]]:
+    """Render camera ``ci`` and write its frames and ground truth; returns its depth bounds
+    and each object's visible pixel count per frame."""
+    gt = out / "gt"
+    r = render_camera(content, cam, cfg, transform, ci, gains=gains)
+    if lens is not None:
+        frames = render_camera(content, cam, cfg, transform, ci, rays=lens.rays, gains=gains).frames
+        layouts.write_layout_frames(out, layout, cam, lens.mask(frames),
+                                    lambda path, frames: write_video(path, frames, cfg.fps, cfg.codec))
+    elif layout == "dynerf":
+        write_video(out / f"{cam.name}.mp4", r.frames, cfg.fps, cfg.codec)
+    else:
+        img_dir = out / "images" / cam.name
+        img_dir.mkdir(parents=True, exist_ok=True)
+        for f, frame in enumerate(r.frames):
+            cv2.imwrite(str(img_dir / f"{f:06d}.png"), frame[..., ::-1])
+    np.save(gt / "depth" / f"{cam.name}.npy", r.depth)
+    np.save(gt / "flow3d" / f"{cam.name}.npy", r.flow3d)
+    np.save(gt / "objects" / f"{cam.name}.npy", r.objects)
+    if transient_labels:
+        np.save(gt / "transient" / f"{cam.name}.npy", np.isin(r.objects, transient_labels).astype(np.uint8))
+    counts = {o.label: (r.objects == o.label).sum(axis=(1, 2)).tolist() for o in content.objects}
+    return robust_bounds(r.depth), counts
+
+
 def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", seed: int = 0,
-             overwrite: bool = False, verbose: bool = False, **overrides) -> Path:
+             overwrite: bool = False, verbose: bool = False, workers: int | None = None, **overrides) -> Path:
     """Render a synthetic scene into ``out`` (``layout`` in ``SCENE_LAYOUTS``) and return ``out``.
 
     ``overrides`` are ``SynthConfig`` fields (n_cameras, n_frames, width, height, color_shift,
     noise, speed, ...); a lens layout's ``LAYOUT_DEFAULTS`` come first. Ground truth goes to
-    ``out/gt`` (for the undistorted cameras in the lens layouts).
+    ``out/gt`` (for the undistorted cameras in the lens layouts). ``workers``: processes that
+    render cameras side by side (default ``synth_workers``); the files do not depend on it.
     """
     if layout not in SCENE_LAYOUTS:
         raise InputError("--layout", f"unknown layout '{layout}' (choose from {', '.join(SCENE_LAYOUTS)})")
@@ -419,29 +481,13 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
     gt = out / "gt"
     for sub in ("depth", "flow3d", "objects") + (("transient",) if transient_labels else ()):
         (gt / sub).mkdir(parents=True, exist_ok=True)
+    tasks = [(out, layout, cfg, content, cam, ci, transforms[ci], None if gains is None else gains[ci],
+              lenses[ci] if lenses else None, transient_labels) for ci, cam in enumerate(cams)]
     bounds, pixels = [], {}
-    for ci, cam in enumerate(cams):
-        g = None if gains is None else gains[ci]
-        r = render_camera(content, cam, cfg, transforms[ci], ci, gains=g)
-        if lenses:
-            frames = render_camera(content, cam, cfg, transforms[ci], ci, rays=lenses[ci].rays, gains=g).frames
-            layouts.write_layout_frames(out, layout, cam, lenses[ci].mask(frames),
-                                lambda path, frames: write_video(path, frames, cfg.fps, cfg.codec))
-        elif layout == "dynerf":
-            write_video(out / f"{cam.name}.mp4", r.frames, cfg.fps, cfg.codec)
-        else:
-            img_dir = out / "images" / cam.name
-            img_dir.mkdir(parents=True, exist_ok=True)
-            for f, frame in enumerate(r.frames):
-                cv2.imwrite(str(img_dir / f"{f:06d}.png"), frame[..., ::-1])
-        np.save(gt / "depth" / f"{cam.name}.npy", r.depth)
-        np.save(gt / "flow3d" / f"{cam.name}.npy", r.flow3d)
-        np.save(gt / "objects" / f"{cam.name}.npy", r.objects)
-        if transient_labels:
-            np.save(gt / "transient" / f"{cam.name}.npy", np.isin(r.objects, transient_labels).astype(np.uint8))
-        pixels[cam.name] = {o.label: (r.objects == o.label).sum(axis=(1, 2)).tolist() for o in content.objects}
-        bounds.append(robust_bounds(r.depth))
-        say(f"  {cam.name}: {cfg.n_frames} frames, depth {bounds[-1][0]:.2f}..{bounds[-1][1]:.2f}"
+    for cam, (near_far, counts) in zip(cams, _map_cameras(_write_camera, tasks, synth_workers(cfg) if workers is None else workers)):
+        bounds.append(near_far)
+        pixels[cam.name] = counts
+        say(f"  {cam.name}: {cfg.n_frames} frames, depth {near_far[0]:.2f}..{near_far[1]:.2f}"
             f" ({time.perf_counter() - start:.1f} s)")
     order = sorted(range(len(cams)), key=lambda k: cams[k].name)  # rows follow the sorted videos
     if lenses:

@@ -83,6 +83,15 @@ def test_lens_rays_project_back_onto_their_pixels(layout):
     assert np.abs(back.reshape(-1, 2) - pix[inside]).max() < 1e-6
 
 
+def test_lens_scene_has_the_same_bytes_from_two_worker_processes(scenes, tmp_path):
+    ref = scenes["immersive"]  # rendered in this process (a small scene)
+    again = generate(tmp_path / "two", layout="immersive", seed=0, workers=2, **SMALL)
+    files = sorted(p.relative_to(ref) for p in ref.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
+    for rel in files:
+        assert (ref / rel).read_bytes() == (again / rel).read_bytes(), rel
+
+
 def test_immersive_files_are_the_publishers(scenes):
     scene = scenes["immersive"]
     models = json.loads((scene / "models.json").read_text())
