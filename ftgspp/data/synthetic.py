@@ -22,12 +22,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing
 import os
 import shutil
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Callable
@@ -38,6 +36,7 @@ import numpy as np
 from ftgspp.data import synthetic_layouts as layouts
 from ftgspp.data.scene import Camera
 from ftgspp.data.synthetic_geometry import ArcPath, Box, LinearPath, MovingSphere, Quad, SceneContent
+from ftgspp.data.synthetic_pool import map_in_processes
 from ftgspp.data.synthetic_raycast import cast_objects, cast_static
 from ftgspp.data.synthetic_rig import make_rig, pixel_rays
 from ftgspp.data.synthetic_textures import Texture, make_texture
@@ -417,23 +416,13 @@ def synth_workers(cfg: SynthConfig) -> int:
     return max(1, min(n, cfg.n_cameras))
 
 
-def _map_cameras(fn: Callable, tasks: list[tuple], workers: int) -> list:
-    """``[fn(*t) for t in tasks]``, in order, over ``workers`` spawned processes. Each camera
-    is a deterministic function of its task alone (its noise has its own seed), so the files
-    are the same for any number of workers."""
-    workers = max(1, min(workers, len(tasks)))
-    if workers == 1:
-        return [fn(*t) for t in tasks]
-    # spawn: the caller may hold OpenMP threads (torch, Numba), which a fork would break
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return list(pool.map(fn, *zip(*tasks)))
-
-
 def _write_camera(out: Path, layout: str, cfg: SynthConfig, content: SceneContent, cam: Camera, ci: int,
                   transform: tuple[np.ndarray, np.ndarray], gains: np.ndarray | None, lens: object | None,
                   transient_labels: list[int]) -> tuple[tuple[float, float], dict[int, list[int]]]:
     """Render camera ``ci`` and write its frames and ground truth; returns its depth bounds
-    and each object's visible pixel count per frame."""
+    and each object's visible pixel count per frame. A deterministic function of its
+    arguments alone (the camera's noise has its own seed), so the files do not depend on
+    which process renders which camera."""
     gt = out / "gt"
     r = render_camera(content, cam, cfg, transform, ci, gains=gains)
     if lens is not None:
@@ -484,7 +473,8 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
     tasks = [(out, layout, cfg, content, cam, ci, transforms[ci], None if gains is None else gains[ci],
               lenses[ci] if lenses else None, transient_labels) for ci, cam in enumerate(cams)]
     bounds, pixels = [], {}
-    for cam, (near_far, counts) in zip(cams, _map_cameras(_write_camera, tasks, synth_workers(cfg) if workers is None else workers)):
+    n_workers = synth_workers(cfg) if workers is None else workers
+    for cam, (near_far, counts) in zip(cams, map_in_processes(_write_camera, tasks, n_workers)):
         bounds.append(near_far)
         pixels[cam.name] = counts
         say(f"  {cam.name}: {cfg.n_frames} frames, depth {near_far[0]:.2f}..{near_far[1]:.2f}"

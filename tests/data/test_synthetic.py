@@ -8,6 +8,7 @@ and spheres are re-intersected analytically from ``trajectories.json``.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import cv2
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 
 from ftgspp.data.synthetic import generate, main
+from ftgspp.data.synthetic_pool import map_in_processes
 from ftgspp.errors import InputError
 
 SMALL = dict(n_cameras=4, n_frames=6, width=96, height=72)
@@ -292,3 +294,9 @@ def test_errors_and_cli(tmp_path, capsys):
     assert (params["n_cameras"], params["color_shift"], params["noise"], params["speed"]) == (3, 0.5, 0.0, 2.0)
     assert main(args) == 2  # refuses to write into a non-empty folder ...
     assert main(args + ["--overwrite"]) == 0  # ... unless asked to replace the earlier scene
+
+
+def test_worker_processes_keep_the_order_and_report_a_failure():
+    assert map_in_processes(math.sqrt, [(4.0,), (9.0,), (16.0,)], workers=2) == [2.0, 3.0, 4.0]
+    with pytest.raises(RuntimeError, match="scene-rendering worker failed: ValueError: math domain error"):
+        map_in_processes(math.sqrt, [(4.0,), (-1.0,)], workers=2)
