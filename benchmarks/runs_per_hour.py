@@ -5,7 +5,8 @@ SQLite store, scene cache and outputs; ``--jobs`` at a time, 2 by default as the
 profiles do) and reports runs per hour, plus where a run's wall time goes: training (the
 trainer's ``train_seconds``), and everything else in the run (start-up, imports, scene
 loading, initialisation, evaluation, LPIPS, diagnostics, MLflow logging), and the study's
-fixed cost before its first run (scene synthesis, kernel warm-up). Nothing is asserted:
+fixed cost before its first run (scene synthesis, kernel warm-up), and the steady rate once
+every worker has finished its first run (what a long study approaches). Nothing is asserted:
 compare figures from one run of this script.
 
     .venv/bin/python benchmarks/runs_per_hour.py                    # 6 quick runs on studio
@@ -61,19 +62,30 @@ profiles:
 PHASES = ("init_seconds", "train_seconds", "eval_seconds", "eval_lpips_seconds", "diagnostics_seconds")
 
 
-def summarise(wall_s: float, runs: list[dict], study_start: float) -> dict:
+def summarise(wall_s: float, runs: list[dict], study_start: float, jobs: int = 2) -> dict:
     """Runs per hour over the whole study and the median split of a run's wall time.
 
     ``runs``: one dict per finished run with ``start``/``end`` (epoch seconds, MLflow's run
     times) and the trainer's phase timings (``PHASES``); ``study_start``: when ``study run``
     was started. ``rest_s`` is the run's wall time the phases do not cover (process start-up,
     imports, scene loading, logging).
+
+    ``steady_runs_per_hour`` is the rate once every worker has finished its first run: the
+    runs that ended after the ``jobs``-th run to end, over the time from that end to the last
+    (None with fewer than ``jobs + 1`` runs). It leaves out what a study pays once (start-up,
+    scene synthesis, each worker's first run), so it is what a long study approaches; the
+    whole-study rate is what a study of this many runs gets.
     """
     walls = [r["end"] - r["start"] for r in runs]
     phases = {p: statistics.median(r.get(p, 0.0) for r in runs) for p in PHASES}
     rest = [w - sum(r.get(p, 0.0) for p in PHASES) for w, r in zip(walls, runs)]
+    ends = sorted(r["end"] for r in runs)
+    steady = None
+    if len(ends) > jobs and ends[-1] > ends[jobs - 1]:
+        steady = 3600.0 * (len(ends) - jobs) / (ends[-1] - ends[jobs - 1])
     return {
         "runs": len(runs), "wall_s": wall_s, "runs_per_hour": 3600.0 * len(runs) / wall_s,
+        "steady_runs_per_hour": steady,
         "run_wall_s_median": statistics.median(walls), "phases_s_median": phases,
         "rest_s_median": statistics.median(rest), "before_first_run_s": min(r["start"] for r in runs) - study_start,
     }  # fmt: skip
@@ -141,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
                 info = store.client.get_run(rec.run_id).info
                 runs.append({"start": info.start_time / 1000.0, "end": info.end_time / 1000.0,
                              **{p: rec.metrics[p] for p in PHASES if p in rec.metrics}})
-    result = {**summarise(wall, runs, start), "jobs": args.jobs, "preset": args.preset, "profile": args.profile,
+    result = {**summarise(wall, runs, start, args.jobs), "jobs": args.jobs, "preset": args.preset, "profile": args.profile,
               "target": args.target,
               "cpu_count": os.cpu_count(), "load_average_after": os.getloadavg()[0]}
     if args.json:
@@ -149,7 +161,9 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(f"{result['runs']} {args.profile} runs on {args.preset}, {args.jobs} at a time, kernels for "
               f"{args.target}: {wall / 60:.1f} min,"
-              f" {result['runs_per_hour']:.0f} runs per hour")
+              f" {result['runs_per_hour']:.0f} runs per hour"
+              + (f" ({result['steady_runs_per_hour']:.0f} once every worker has finished a run)"
+                 if result["steady_runs_per_hour"] else ""))
         ph = result["phases_s_median"]
         print(f"per run (medians, s): wall {result['run_wall_s_median']:.1f}; " + ", ".join(
             f"{p.removesuffix('_seconds')} {ph[p]:.1f}" for p in PHASES)

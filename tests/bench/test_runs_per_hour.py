@@ -21,6 +21,19 @@ def test_summary_splits_a_run_into_its_phases_and_the_rest() -> None:
     assert out["runs_per_hour"] == pytest.approx(4 * 3600 / 120)
     assert out["run_wall_s_median"] == 50.0 and out["rest_s_median"] == pytest.approx(10.0)
     assert out["phases_s_median"]["train_seconds"] == 30.0 and out["before_first_run_s"] == 20.0
+    # ends 150, 160, 170, 180: after the 2nd end (160) two more runs in 20 s
+    assert out["steady_runs_per_hour"] == pytest.approx(2 * 3600 / 20)
+    assert rph.summarise(wall_s=120.0, runs=runs[:2], study_start=80.0)["steady_runs_per_hour"] is None
+
+
+def test_the_steady_rate_leaves_out_each_workers_first_run() -> None:
+    rph = load()
+    # two workers; their first runs take 40 s (start-up), later ones 30 s: 4 runs after t = 40
+    ends = [40.0, 40.0, 70.0, 70.0, 100.0, 100.0]
+    runs = [{"start": e - (40.0 if e == 40.0 else 30.0), "end": e} for e in ends]
+    out = rph.summarise(wall_s=105.0, runs=runs, study_start=0.0, jobs=2)
+    assert out["steady_runs_per_hour"] == pytest.approx(4 * 3600 / 60)  # 240 = 2 runs per 30 s
+    assert out["runs_per_hour"] == pytest.approx(6 * 3600 / 105)
 
 
 def test_a_target_compiles_for_its_cpu_in_its_own_cache_and_caps_torch(tmp_path: Path) -> None:
