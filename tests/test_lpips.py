@@ -106,6 +106,8 @@ def test_reference_features_are_remembered_with_the_same_bits(lpips_weights: Pat
     pred = preds[1].clone().requires_grad_(True)  # gradients still reach the prediction
     model(pred, gt).sum().backward()
     assert pred.grad is not None and pred.grad.abs().sum() > 0
+    model.load_state_dict({k: v * 2 for k, v in model.state_dict().items()})  # new weights: features anew
+    assert not model._memo and torch.equal(model(preds[0], gt), _distance_without_memo(model, preds[0], gt))
 
 
 def test_tampered_weights_file_is_rejected(lpips_weights: Path, tmp_path: Path):

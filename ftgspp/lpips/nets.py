@@ -108,6 +108,8 @@ class LPIPS(nn.Module):
     with respect to the images, so it can serve as a training loss.
     """
 
+    MEMO_BYTES = 128 * 2**20  # reference features kept per model (``_reference_features``)
+
     def __init__(self, net: str = "vgg") -> None:
         super().__init__()
         if net not in NETS:
@@ -157,7 +159,11 @@ class LPIPS(nn.Module):
                 self._memo_bytes -= sum(f.numel() * f.element_size() for f in old)
         return feats
 
-    MEMO_BYTES = 128 * 2**20
+    def load_state_dict(self, state_dict, *args, **kwargs):  # type: ignore[override]
+        """``nn.Module.load_state_dict``; the remembered features of the old weights are dropped."""
+        self._memo.clear()
+        self._memo_bytes = 0
+        return super().load_state_dict(state_dict, *args, **kwargs)
 
     def forward(self, x0: Tensor, x1: Tensor) -> Tensor:
         """x0, x1 [B, 3, H, W] RGB in [-1, 1] -> distances [B]. ``x1`` is the reference (the
