@@ -1,4 +1,4 @@
-"""The runs-per-hour benchmark's arithmetic (the benchmark itself runs real studies)."""
+"""The benchmark scripts' arithmetic and input checks (the benchmarks themselves run real studies and runs)."""
 
 from __future__ import annotations
 
@@ -47,3 +47,9 @@ def test_an_unknown_target_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[
     assert load().main(["--target", "pentium-mmx"]) == 2  # refused before any study starts
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unknown CPU target" in err[0]
+
+
+def test_raster_views_refuses_a_folder_that_is_not_a_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert load_script("raster_views").main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a finished training run" in err[0]
