@@ -22,8 +22,6 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")  # one thread, as a study's workers run
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -123,7 +121,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.stride < 1 or args.repeats < 1:
         print("error: --stride and --repeats must be at least 1", file=sys.stderr)
         return 2
-    views = capture_views(args.run_dir, args.stride, args.data)
+    from ftgspp.errors import InputError
+
+    try:
+        views = capture_views(args.run_dir, args.stride, args.data)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if not views:
+        print(f"error: {args.run_dir}: its scene has no training view to render", file=sys.stderr)
+        return 2
     out = {"views": len(views), "commit_root": str(ROOT), **time_views(views, args.repeats)}
     if args.json:
         print(json.dumps(out))
@@ -132,9 +139,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{len(views)} views of {args.run_dir}, one thread, ms a view (median of {args.repeats}): "
               + ", ".join(f"{name} {ms[name]:.3f}" for name in KERNELS))
         print(f"per view: {pv['pairs']:.0f} (tile, Gaussian) pairs, {pv['live_pairs']:.0f} contributing,"
-              f" {pv['rows']:.0f} tile rows visited")
+              f" {pv['rows']:.0f} tile rows in the pairs' row ranges")
     return 0
 
 
 if __name__ == "__main__":
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")  # one thread, as a study's workers run (before Numba loads)
     raise SystemExit(main())

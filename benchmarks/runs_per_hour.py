@@ -70,11 +70,12 @@ def summarise(wall_s: float, runs: list[dict], study_start: float, jobs: int = 2
     was started. ``rest_s`` is the run's wall time the phases do not cover (process start-up,
     imports, scene loading, logging).
 
-    ``steady_runs_per_hour`` is the rate once every worker has finished its first run: the
-    runs that ended after the ``jobs``-th run to end, over the time from that end to the last
-    (None with fewer than ``jobs + 1`` runs). It leaves out what a study pays once (start-up,
-    scene synthesis, each worker's first run), so it is what a long study approaches; the
-    whole-study rate is what a study of this many runs gets.
+    ``steady_runs_per_hour``: the runs that ended after the ``jobs``-th run to end, over the
+    time from that end to the last (None with fewer than ``jobs + 1`` runs). The first
+    ``jobs`` ends are normally each worker's first run (a worker that finished two runs before
+    another finished its first would leave that slow first run in), so the figure leaves out
+    what a study pays once (start-up, scene synthesis, the workers' first runs): it is what a
+    long study approaches; the whole-study rate is what a study of this many runs gets.
     """
     walls = [r["end"] - r["start"] for r in runs]
     phases = {p: statistics.median(r.get(p, 0.0) for r in runs) for p in PHASES}

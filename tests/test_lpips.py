@@ -95,14 +95,28 @@ def test_reference_features_are_remembered_with_the_same_bits(lpips_weights: Pat
         got = model(pred, gt.clone())  # an equal image at another address hits the memo
         assert len(calls) == (2 if i == 0 else 1)
         assert torch.equal(got, _distance_without_memo(model, pred, gt))
-    model.MEMO_BYTES = 1  # nothing fits: computed every time, same bits
     fresh = load_lpips("alex", lpips_weights)
-    fresh.MEMO_BYTES = 1
-    calls.clear()
+    fresh.MEMO_BYTES = 1  # nothing fits: computed every time, same bits
     assert torch.equal(fresh(preds[1], gt), _distance_without_memo(model, preds[1], gt))
     assert not fresh._memo
     other = torch.flip(gt, dims=[3])  # other content: its own entry
     assert torch.equal(model(preds[0], other), _distance_without_memo(model, preds[0], other))
+    model.MEMO_BYTES = model._memo_bytes  # full: a new image is computed, not kept, the old stay
+    third = torch.flip(gt, dims=[2])
+    assert torch.equal(model(preds[0], third), _distance_without_memo(model, preds[0], third))
+    assert len(model._memo) == 2
+    with torch.no_grad():  # an in-place edit of the weights: features anew
+        model.lins[0].weight.mul_(2.0)
+    calls.clear()
+    got = model(preds[0], gt)
+    assert len(calls) == 2 and torch.equal(got, _distance_without_memo(model, preds[0], gt))
+    model.MEMO_BYTES = LPIPS.MEMO_BYTES
+    double = load_lpips("alex", lpips_weights)
+    double(preds[0], gt)
+    double.double()  # another dtype: the float32 features are not reused
+    p64, g64 = preds[0].double(), gt.double()
+    for _ in range(2):  # a miss, then a hit
+        assert torch.equal(double(p64, g64), _distance_without_memo(double, p64, g64))
     pred = preds[1].clone().requires_grad_(True)  # gradients still reach the prediction
     model(pred, gt).sum().backward()
     assert pred.grad is not None and pred.grad.abs().sum() > 0

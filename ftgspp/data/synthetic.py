@@ -568,4 +568,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # through the importable module: its functions and classes then pickle by their real names
+    # for the worker processes that render cameras (``synthetic_pool``), which __main__'s do not
+    from ftgspp.data.synthetic import main as _main
+
+    raise SystemExit(_main())

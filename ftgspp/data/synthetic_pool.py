@@ -4,8 +4,8 @@
 round-robin to ``workers`` child interpreters started as ``python -m ftgspp.data.synthetic_pool
 IN OUT``. A child imports only what ``fn`` needs: a ``multiprocessing`` spawn child would import
 the parent's main module first (for ``study run``: torch, Hydra and MLflow, about 2 s each,
-more than a small scene takes to render). ``fn`` must be a module-level function, and tasks and
-results must pickle; the pickles are written to a private temporary folder and read back by
+more than a small scene takes to render). ``fn`` must be a module-level function of an importable
+module (not ``__main__``), and tasks and results must pickle; the pickles are written to a private temporary folder and read back by
 this module only.
 """
 
@@ -27,27 +27,36 @@ def map_in_processes(fn: Callable[..., Any], tasks: list[tuple], workers: int) -
     workers = max(1, min(workers, len(tasks)))
     if workers == 1:
         return [fn(*t) for t in tasks]
+    env = {**os.environ, "PYTHONPATH": _import_path()}
     with tempfile.TemporaryDirectory(prefix="ftgspp-synth-") as tmp:
         procs = []
-        for w in range(workers):
-            src, dst = Path(tmp) / f"in{w}.pkl", Path(tmp) / f"out{w}.pkl"
-            src.write_bytes(pickle.dumps((fn, tasks[w::workers])))
-            procs.append((subprocess.Popen([sys.executable, "-m", __name__, str(src), str(dst)],
-                                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                           env={**os.environ, "PYTHONPATH": _import_path()}), dst))
-        results: list[list[Any]] = []
-        for proc, dst in procs:
-            _, err = proc.communicate()
-            if proc.returncode != 0:
-                last = (err.strip().splitlines() or [f"exit status {proc.returncode}"])[-1]
-                raise RuntimeError(f"a scene-rendering worker failed: {last}")
-            results.append(pickle.loads(dst.read_bytes()))
+        try:
+            for w in range(workers):
+                src, dst = Path(tmp) / f"in{w}.pkl", Path(tmp) / f"out{w}.pkl"
+                src.write_bytes(pickle.dumps((fn, tasks[w::workers])))
+                procs.append((subprocess.Popen([sys.executable, "-m", __name__, str(src), str(dst)],
+                                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                               env=env), dst))
+            results: list[list[Any]] = []
+            for proc, dst in procs:
+                _, err = proc.communicate()
+                if proc.returncode != 0:
+                    last = (err.strip().splitlines() or [f"exit status {proc.returncode}"])[-1]
+                    raise RuntimeError(f"a scene-rendering worker failed: {last}")
+                results.append(pickle.loads(dst.read_bytes()))
+        finally:  # after a failure the other workers stop too: nothing writes after the error
+            for proc, _ in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.communicate()
     return [results[k % workers][k // workers] for k in range(len(tasks))]
 
 
 def _import_path() -> str:
-    """This process's import path, so that a child finds the same ``ftgspp``."""
-    return os.pathsep.join(p or os.getcwd() for p in sys.path)
+    """The folder holding this ``ftgspp`` first, then the inherited ``PYTHONPATH``: a child
+    imports the same code as this process, and nothing else is added to its path."""
+    root = str(Path(__file__).resolve().parents[2])
+    return os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH", "")])])
 
 
 def _child(src: str, dst: str) -> None:

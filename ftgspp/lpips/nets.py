@@ -20,7 +20,6 @@ Usage::
 from __future__ import annotations
 
 import hashlib
-from collections import OrderedDict
 
 import torch
 import torch.nn.functional as F
@@ -126,8 +125,9 @@ class LPIPS(nn.Module):
         self.register_buffer("scale", scale, persistent=False)
         self.requires_grad_(False)
         self.eval()
-        self._memo: OrderedDict[tuple, list[Tensor]] = OrderedDict()  # see _reference_features
+        self._memo: dict[tuple, list[Tensor]] = {}  # see _reference_features
         self._memo_bytes = 0
+        self._memo_weights: tuple = ()
 
     def _features(self, x: Tensor) -> list[Tensor]:
         """Unit-normalised feature taps of RGB images ``x`` [B, 3, H, W] in [-1, 1]."""
@@ -139,24 +139,28 @@ class LPIPS(nn.Module):
         Evaluation scores every run's renders against the same held-out ground-truth frames,
         so a worker that makes many runs computes each frame's features once. The key is a
         digest of the bytes (and shape, dtype), so equal images share an entry and the values
-        are exactly those ``_features`` gives; at most ``MEMO_BYTES`` of features are kept,
-        least recently used dropped first."""
+        are exactly those ``_features`` gives. Entries are kept until ``MEMO_BYTES`` are used,
+        then new ones are computed without being kept: evaluation visits the same frames in the
+        same cycle every run, where dropping the oldest entry would leave no hit at all once the
+        cycle outgrows the memo (VGG at 128x96 holds 22 of 60). A change of the weights (new
+        tensors, another dtype or device, an in-place edit) drops every entry."""
         if x.requires_grad or x.device.type != "cpu":
             return self._features(x)
+        weights = tuple((p.data_ptr(), p.dtype, p.device, p._version) for p in self.parameters())
+        if weights != self._memo_weights:
+            self._memo.clear()
+            self._memo_bytes, self._memo_weights = 0, weights
         data = x.detach().contiguous()
-        key = (tuple(data.shape), str(data.dtype), hashlib.blake2b(data.numpy().tobytes(), digest_size=16).digest())
+        digest = hashlib.blake2b(data.reshape(-1).view(torch.uint8).numpy().tobytes(), digest_size=16).digest()
+        key = (tuple(data.shape), str(data.dtype), digest)
         hit = self._memo.get(key)
         if hit is not None:
-            self._memo.move_to_end(key)
             return hit
         feats = self._features(x)
         size = sum(f.numel() * f.element_size() for f in feats)
-        if size <= self.MEMO_BYTES:
+        if self._memo_bytes + size <= self.MEMO_BYTES:
             self._memo[key] = feats
             self._memo_bytes += size
-            while self._memo_bytes > self.MEMO_BYTES:
-                _, old = self._memo.popitem(last=False)
-                self._memo_bytes -= sum(f.numel() * f.element_size() for f in old)
         return feats
 
     def load_state_dict(self, state_dict, *args, **kwargs):  # type: ignore[override]

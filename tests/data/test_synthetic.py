@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -300,3 +303,14 @@ def test_worker_processes_keep_the_order_and_report_a_failure():
     assert map_in_processes(math.sqrt, [(4.0,), (9.0,), (16.0,)], workers=2) == [2.0, 3.0, 4.0]
     with pytest.raises(RuntimeError, match="scene-rendering worker failed: ValueError: math domain error"):
         map_in_processes(math.sqrt, [(4.0,), (-1.0,)], workers=2)
+
+
+def test_module_run_renders_cameras_in_worker_processes(tmp_path):
+    # run as `python -m ftgspp.data.synthetic`, the module is __main__: workers must still find it
+    out = tmp_path / "m"
+    proc = subprocess.run([sys.executable, "-m", "ftgspp.data.synthetic", "--out", str(out), "--cameras", "2",
+                           "--frames", "2", "--width", "32", "--height", "24"], capture_output=True, text=True,
+                          env={**os.environ, "FTGSPP_SYNTH_WORKERS": "2"}, cwd=Path(__file__).resolve().parents[2])
+    assert proc.returncode == 0, proc.stderr[-500:]
+    again = generate(tmp_path / "serial", seed=0, workers=1, n_cameras=2, n_frames=2, width=32, height=24)
+    assert (out / "cam01.mp4").read_bytes() == (again / "cam01.mp4").read_bytes()
