@@ -10,8 +10,9 @@ A few frames are saved as ``renders/<cam>_<frame>.png`` (ground truth | render).
 
 from __future__ import annotations
 
+import functools
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -53,25 +54,23 @@ def check_eval_lpips(nets: Sequence[str]) -> None:
         raise InputError("eval_lpips", f"unknown LPIPS network(s) {unknown}; choose from {list(NETS)}")
 
 
-_LOADED: dict[tuple[str, str], torch.nn.Module] = {}
-
-
-def _loaded_lpips(net: str, device: str, load: Callable[..., torch.nn.Module]) -> torch.nn.Module:
+@functools.lru_cache(maxsize=None)
+def _loaded_lpips(net: str, device: str) -> torch.nn.Module:
     """The process's one LPIPS model of ``net`` on ``device``: a worker that makes many runs
     loads and verifies the weights once, and keeps the held-out frames' features between runs
-    (``LPIPS._reference_features``)."""
-    if (net, device) not in _LOADED:
-        _LOADED[net, device] = load(net, device=device)
-    return _LOADED[net, device]
+    (``LPIPS._reference_features``). Missing weights raise and are not remembered."""
+    from ftgspp.lpips import load_lpips
+
+    return load_lpips(net, device=device)
 
 
 def lpips_models(device: torch.device, nets: Sequence[str] = NETS) -> dict | None:
     """The LPIPS networks ``nets`` when their weights are present, else None (LPIPS keys omitted)."""
-    from ftgspp.lpips import WeightsError, load_lpips, missing_message
+    from ftgspp.lpips import WeightsError, missing_message
 
     check_eval_lpips(nets)
     try:
-        return {net: _loaded_lpips(net, str(device), load_lpips) for net in nets}
+        return {net: _loaded_lpips(net, str(device)) for net in nets}
     except WeightsError:
         log.warning("%s; LPIPS is left out of the metrics", missing_message())
         return None

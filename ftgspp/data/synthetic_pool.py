@@ -4,9 +4,9 @@
 round-robin to ``workers`` child interpreters started as ``python -m ftgspp.data.synthetic_pool
 IN OUT``. A child imports only what ``fn`` needs: a ``multiprocessing`` spawn child would import
 the parent's main module first (for ``study run``: torch, Hydra and MLflow, about 2 s each,
-more than a small scene takes to render). ``fn`` must be a module-level function of an importable
-module (not ``__main__``), and tasks and results must pickle; the pickles are written to a private temporary folder and read back by
-this module only.
+more than a small scene takes to render). ``fn`` must be a module-level function of an
+importable module (not ``__main__``), and tasks and results must pickle; the pickles are
+written to a private temporary folder and read back by this module only.
 """
 
 from __future__ import annotations
