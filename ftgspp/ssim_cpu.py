@@ -68,8 +68,9 @@ def _padded(length, n_ch):
 @njit(**JIT)
 def _filter_row(src, dst, taps, n_ch, pad):
     """dst = taps (*) src along one row of W*C floats, zero padded, channel stride n_ch."""
-    o = RADIUS * n_ch
-    for j in range(src.shape[0]):  # a loop, not a slice assignment: Numba's is element by element
+    o = np.uintp(RADIUS * n_ch)
+    for i in range(src.shape[0]):  # a loop, not a slice assignment: Numba's is element by element
+        j = np.uintp(i)  # unsigned, as in _filter_padded: LLVM then vectorises the copy (it was scalar)
         pad[o + j] = src[j]
     _filter_padded(pad, dst, taps, n_ch)
 
@@ -135,19 +136,22 @@ def ssim_forward(
     with respect to mu_x, mu_y, E[x^2] (= that w.r.t. E[y^2]) and E[xy], each [B * H, W * C]."""
     rows, length = x.shape
     hx = np.empty((5, rows, length), np.float32)  # horizontally filtered x, y, xx, yy, xy
-    o = RADIUS * n_ch
+    o = np.uintp(RADIUS * n_ch)
     for r in prange(rows):
         pad = _padded(length, n_ch)
         xr, yr = x[r], y[r]
         _filter_row(xr, hx[0, r], taps, n_ch, pad)
         _filter_row(yr, hx[1, r], taps, n_ch, pad)
-        for j in range(length):
+        for i in range(length):  # unsigned indices (_filter_row)
+            j = np.uintp(i)
             pad[o + j] = xr[j] * xr[j]
         _filter_padded(pad, hx[2, r], taps, n_ch)
-        for j in range(length):
+        for i in range(length):
+            j = np.uintp(i)
             pad[o + j] = yr[j] * yr[j]
         _filter_padded(pad, hx[3, r], taps, n_ch)
-        for j in range(length):
+        for i in range(length):
+            j = np.uintp(i)
             pad[o + j] = xr[j] * yr[j]
         _filter_padded(pad, hx[4, r], taps, n_ch)
     n_maps = 4 if want_grad else 0
