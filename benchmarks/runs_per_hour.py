@@ -17,6 +17,10 @@ compare figures from one run of this script.
 (its default features, in a kernel cache of its own that a warm-up fills before the clock
 starts) and caps torch and oneDNN at its vector ISA, as ``ftgspp bench --target`` does, so an
 AVX-512 host measures what an AVX2 host's instruction set gives (not its microarchitecture).
+
+``--gc-log`` also times Python's garbage collector in every process of the study
+(``benchmarks/gclog/sitecustomize.py``) and reports, per process, the generation-2 collections
+and their seconds (the two workers are the processes with the most).
 """
 
 from __future__ import annotations
@@ -92,6 +96,20 @@ def summarise(wall_s: float, runs: list[dict], study_start: float, jobs: int = 2
     }  # fmt: skip
 
 
+def summarise_gc(log: Path) -> list[dict]:
+    """Per process of a ``--gc-log`` study, the generation-2 collections and their seconds (and
+    generation 1's), most seconds first, from the lines ``pid generation seconds collected``."""
+    per: dict[int, dict] = {}
+    if log.exists():
+        for line in log.read_text().splitlines():
+            pid, gen, seconds, _ = line.split()
+            p = per.setdefault(int(pid), {"pid": int(pid), "gen2": 0, "gen2_s": 0.0, "gen1": 0, "gen1_s": 0.0})
+            key = "gen2" if gen == "2" else "gen1"
+            p[key] += 1
+            p[key + "_s"] += float(seconds)
+    return sorted(per.values(), key=lambda p: -p["gen2_s"])
+
+
 def target_environment(target: str, cache: Path) -> dict[str, str]:
     """Environment of a study whose processes compile their kernels for ``target`` into ``cache``
     and run torch's kernels for its ISA (``ftgspp.bench.isa``)."""
@@ -107,6 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--preset", default="studio")
     p.add_argument("--profile", default="quick", help="the trainer profile of each run (quick or smoke)")
     p.add_argument("--target", default="host", help="LLVM CPU to compile the kernels for (default: host)")
+    p.add_argument("--gc-log", action="store_true", help="time the garbage collector in every process")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     if args.target != "host":
@@ -129,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
 
         env = without_isa_choices({k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"})
         env.update(FTGSPP_STUDIES=str(studies), PYTHONPATH=str(ROOT))
+        gc_log = work / "gc.log"
+        if args.gc_log:
+            env.update(PYTHONPATH=os.pathsep.join([str(ROOT / "benchmarks" / "gclog"), str(ROOT)]),
+                       FTGSPP_GC_LOG=str(gc_log))
         if args.target != "host":
             env.update(target_environment(args.target, work / "numba-cache"))
             warm = [sys.executable, "-m", "ftgspp.bench", "train", "--backends", "cpu", "--iterations", "2",
@@ -154,9 +177,12 @@ def main(argv: list[str] | None = None) -> int:
                 info = store.client.get_run(rec.run_id).info
                 runs.append({"start": info.start_time / 1000.0, "end": info.end_time / 1000.0,
                              **{p: rec.metrics[p] for p in PHASES if p in rec.metrics}})
+        collections = summarise_gc(gc_log) if args.gc_log else None
     result = {**summarise(wall, runs, start, args.jobs), "jobs": args.jobs, "preset": args.preset, "profile": args.profile,
               "target": args.target,
               "cpu_count": os.cpu_count(), "load_average_after": os.getloadavg()[0]}
+    if collections is not None:
+        result["gc_per_process"] = collections
     if args.json:
         print(json.dumps(result))
     else:
@@ -170,6 +196,9 @@ def main(argv: list[str] | None = None) -> int:
             f"{p.removesuffix('_seconds')} {ph[p]:.1f}" for p in PHASES)
             + f", the rest (start-up, imports, loading, logging) {result['rest_s_median']:.1f}")
         print(f"before the first run: {result['before_first_run_s']:.1f} s (scene synthesis, kernel warm-up)")
+        for c in result.get("gc_per_process", [])[:3]:
+            print(f"process {c['pid']}: {c['gen2']} full garbage collections, {c['gen2_s']:.2f} s"
+                  f" ({c['gen1']} of generation 1, {c['gen1_s']:.2f} s)")
     return 0
 
 

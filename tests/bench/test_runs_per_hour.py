@@ -53,3 +53,31 @@ def test_raster_views_refuses_a_folder_that_is_not_a_run(tmp_path: Path, capsys:
     assert load_script("raster_views").main([str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a finished training run" in err[0]
+
+
+def test_gc_log_lines_from_a_real_process_are_summed_per_process(tmp_path: Path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    rph = load()
+    log = tmp_path / "gc.log"
+    gclog = Path(rph.ROOT) / "benchmarks" / "gclog"
+    code = "import gc\nfor _ in range(3): gc.collect()\ngc.collect(1)\n"
+    env = {**os.environ, "PYTHONPATH": str(gclog), "FTGSPP_GC_LOG": str(log)}
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    (one,) = [p for p in rph.summarise_gc(log) if p["gen2"] >= 3]
+    assert one["gen1"] >= 1 and one["gen2_s"] > 0.0
+    env.pop("FTGSPP_GC_LOG")  # without the variable the module logs nothing
+    subprocess.run([sys.executable, "-c", code], env=env, check=True, cwd=tmp_path)
+    assert rph.summarise_gc(tmp_path / "absent.log") == []
+
+
+def test_gc_summary_orders_processes_by_full_collection_seconds(tmp_path: Path) -> None:
+    log = tmp_path / "gc.log"
+    log.write_text("10 2 0.5 3\n11 2 0.1 0\n10 2 0.25 1\n11 1 0.01 0\n12 1 0.02 5\n")
+    out = load().summarise_gc(log)
+    assert [p["pid"] for p in out] == [10, 11, 12]
+    assert out[0]["gen2"] == 2 and out[0]["gen2_s"] == pytest.approx(0.75)
+    assert out[1]["gen1"] == 1 and out[2]["gen2"] == 0
