@@ -102,7 +102,10 @@ def summarise_gc(log: Path) -> list[dict]:
     per: dict[int, dict] = {}
     if log.exists():
         for line in log.read_text().splitlines():
-            pid, gen, seconds, _ = line.split()
+            fields = line.split()
+            if len(fields) != 4:  # a line cut short by a killed process
+                continue
+            pid, gen, seconds, _ = fields
             p = per.setdefault(int(pid), {"pid": int(pid), "gen2": 0, "gen2_s": 0.0, "gen1": 0, "gen1_s": 0.0})
             key = "gen2" if gen == "2" else "gen1"
             p[key] += 1
@@ -156,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
             env.update(target_environment(args.target, work / "numba-cache"))
             warm = [sys.executable, "-m", "ftgspp.bench", "train", "--backends", "cpu", "--iterations", "2",
                     "--repeats", "1", "--json"]  # the kernels compiled for the target before the clock starts
-            proc = subprocess.run(warm, cwd=work, env=env, capture_output=True, text=True)
+            warm_env = {k: v for k, v in env.items() if k != "FTGSPP_GC_LOG"}  # not part of the study
+            proc = subprocess.run(warm, cwd=work, env=warm_env, capture_output=True, text=True)
             if proc.returncode != 0:
                 print(f"error: compiling the kernels for {args.target} failed: "
                       + (proc.stderr.strip().splitlines() or ["no output"])[-1], file=sys.stderr)

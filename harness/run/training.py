@@ -16,8 +16,8 @@ from harness.run.heap import settled_heap
 def run_training(cfg: TrainConfig, out_dir: Path, tracker: Tracker | None = None) -> RunResult:
     """Load the scene named by ``cfg.data`` and train it, writing into ``out_dir``.
 
-    The process's garbage collector is settled around the run (``run.heap``): a worker that
-    makes many runs, or exits after one, does not walk its long-lived objects again."""
+    The process's garbage collector is settled around its first run (``run.heap``): a worker
+    that makes many runs, or exits after them, does not walk its long-lived objects again."""
     cfg.out_dir = str(out_dir)
     with settled_heap():  # around a call, so that the scene and the model are gone before the freeze
         result = _load_and_train(cfg, tracker or NullTracker())

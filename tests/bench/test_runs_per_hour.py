@@ -69,14 +69,16 @@ def test_gc_log_lines_from_a_real_process_are_summed_per_process(tmp_path: Path)
     assert proc.returncode == 0, proc.stderr
     (one,) = [p for p in rph.summarise_gc(log) if p["gen2"] >= 3]
     assert one["gen1"] >= 1 and one["gen2_s"] > 0.0
+    before = log.read_text()
     env.pop("FTGSPP_GC_LOG")  # without the variable the module logs nothing
     subprocess.run([sys.executable, "-c", code], env=env, check=True, cwd=tmp_path)
+    assert log.read_text() == before and sorted(p.name for p in tmp_path.iterdir()) == ["gc.log"]
     assert rph.summarise_gc(tmp_path / "absent.log") == []
 
 
 def test_gc_summary_orders_processes_by_full_collection_seconds(tmp_path: Path) -> None:
     log = tmp_path / "gc.log"
-    log.write_text("10 2 0.5 3\n11 2 0.1 0\n10 2 0.25 1\n11 1 0.01 0\n12 1 0.02 5\n")
+    log.write_text("10 2 0.5 3\n11 2 0.1 0\n10 2 0.25 1\n11 1 0.01 0\n12 1 0.02 5\n12 2 0.")  # last line cut
     out = load().summarise_gc(log)
     assert [p["pid"] for p in out] == [10, 11, 12]
     assert out[0]["gen2"] == 2 and out[0]["gen2_s"] == pytest.approx(0.75)
