@@ -55,6 +55,7 @@ from ftgspp.diagnostics_motion import (
     xt_slice,
 )
 from ftgspp.errors import InputError
+from ftgspp.evaluate import HeldOutRenders
 from ftgspp.model import FreeTimeGaussians
 
 log = logging.getLogger("ftgspp.diagnostics")
@@ -145,6 +146,7 @@ def run_diagnostics(
     row: int | None = None,
     backend: str | None = None,
     figures: bool = True,
+    renders: HeldOutRenders | None = None,
 ) -> DiagnosticsResult:
     """Write every diagnostic PNG and ``diagnostics.json`` into ``out_dir``; return the numbers.
 
@@ -152,6 +154,7 @@ def run_diagnostics(
     to the middle frame, ``row`` (x–t slice) to the middle image row. ``motion`` and
     ``scores`` are measured on scenes with ground truth only. ``figures=False`` measures the
     same numbers and writes only ``diagnostics.json`` (drawing is most of the time).
+    ``renders``: evaluation's renders (``HeldOutRenders``), reused where they are the same views.
     """
     from ftgspp import diagnostics_plots as plots
 
@@ -169,6 +172,13 @@ def run_diagnostics(
     bg = torch.tensor(cfg.background, dtype=torch.float32, device=model.params["means"].device)
     where = f"{cam.name}, frame {frame} (t = {t:.3f} s)"
     files: dict[str, Path] = {}
+    if renders is not None and not renders.matches(model, sh, bg, backend):
+        renders = None
+
+    def frames_at(ids: list[int]) -> np.ndarray:  # renders of camera cam_i, [F, H, W, 3] float32
+        if renders is None:
+            return render_frames(model, cam, scene.times[ids], sh, bg, backend)
+        return np.stack([renders.image(cam_i, f).cpu().numpy() for f in ids]).astype(np.float32)
 
     def draw(name: str, plot: Callable[..., Path], *args: object) -> None:
         if figures:
@@ -193,17 +203,17 @@ def run_diagnostics(
     if figures:
         groups = {"all Gaussians": np.ones(len(frac), bool), f"short-lived (Δt/T < {split:g})": frac < split,
                   f"long-lived (Δt/T ≥ {split:g})": frac >= split}  # fmt: skip
-        renders = {}
+        group_images = {}
         for name, keep in groups.items():
             sub = subset_model(model, keep)
-            renders[f"{name}: {int(keep.sum())}"] = render_frames(sub, cam, np.array([t]), sh, bg, backend)[0]
-        files["lifetime_groups"] = plots.plot_group_renders(scene.image(cam_i, frame), renders, where,
+            group_images[f"{name}: {int(keep.sum())}"] = render_frames(sub, cam, np.array([t]), sh, bg, backend)[0]
+        files["lifetime_groups"] = plots.plot_group_renders(scene.image(cam_i, frame), group_images, where,
                                                             out / "lifetime_groups.png")
 
     # velocity map
     flow, alpha = velocity_map(model, cam, t, scene.fps, backend)
     if figures:
-        rgb = render_frames(model, cam, np.array([t]), sh, bg, backend)[0]
+        rgb = frames_at([frame])[0]
         files["velocity_map"] = plots.plot_velocity_map(rgb, flow, alpha > ALPHA_MIN, where, out / "velocity_map.png")
     speed = np.linalg.norm(flow, axis=-1)[alpha > ALPHA_MIN]
     velocity = {"mean": float(speed.mean()) if speed.size else 0.0,
@@ -211,7 +221,7 @@ def run_diagnostics(
 
     # x–t slice
     gt_xt = xt_slice(scene.frames(cam_i), row).astype(np.float32) / 255.0
-    all_frames = render_frames(model, cam, scene.times, sh, bg, backend)  # [F, H, W, 3]
+    all_frames = frames_at(list(range(scene.n_frames)))  # [F, H, W, 3]
     render_xt = xt_slice(all_frames, row)
     draw("xt_slice", plots.plot_xt_slice, gt_xt, render_xt, cam.name, row, scene.fps, out / "xt_slice.png")
     result = DiagnosticsResult(camera=cam.name, frame=frame, theta=theta, split=split, row=row, lifetime=lifetime,

@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
@@ -104,6 +103,13 @@ class GroundTruth:
     transient: np.ndarray | None = None  # [F, H, W] bool: an object that exists for part of the clip
 
 
+def nearest_indices(src: int, dst: int) -> np.ndarray:
+    """Source index of each of ``dst`` samples when resizing ``src`` samples to ``dst`` by
+    nearest neighbour: ``cv2.resize``'s ``INTER_NEAREST`` rule, floor(i * src / dst) with the
+    scale taken as 1 / (dst / src) in float64, so a gather gives its pixels exactly."""
+    return np.minimum(np.floor(np.arange(dst) * (1.0 / (dst / src))).astype(np.int64), src - 1)
+
+
 def load_ground_truth(scene: Scene, cam: int) -> GroundTruth | None:
     """``gt/{depth,flow3d,objects}/<cam>.npy`` cut to the loaded frames and resized
     (nearest) to the camera's resolution; None when the scene has no such files."""
@@ -119,11 +125,10 @@ def load_ground_truth(scene: Scene, cam: int) -> GroundTruth | None:
         paths.append(transient)
     arrays = []
     for p in paths:
-        a = np.load(p, mmap_mode="r")[ids]
-        if a.shape[1:3] != (c.height, c.width):
-            a = np.stack([cv2.resize(np.asarray(x, dtype=np.float32), (c.width, c.height),
-                                     interpolation=cv2.INTER_NEAREST) for x in a])  # fmt: skip
-        arrays.append(np.asarray(a))
+        a = np.asarray(np.load(p, mmap_mode="r")[ids])
+        if a.shape[1:3] != (c.height, c.width):  # a nearest-neighbour resize is a gather: no per-frame copies
+            a = a.take(nearest_indices(a.shape[1], c.height), axis=1).take(nearest_indices(a.shape[2], c.width), axis=2)
+        arrays.append(a)
     return GroundTruth(arrays[0].astype(np.float32), arrays[1].astype(np.float32), arrays[2].astype(np.uint8),
                        arrays[3] > 0 if len(arrays) > 3 else None)
 

@@ -6,6 +6,8 @@ Each frame is rendered without colour correction, scored with the metrics of
 ``evaluate_lpips`` (LPIPS when its weights are present), so the trainer can save the
 network-free numbers before an optional network metric runs.
 A few frames are saved as ``renders/<cam>_<frame>.png`` (ground truth | render).
+Both passes, and the trainer's diagnostics after them, take their renders from one
+``HeldOutRenders``: each held-out view is rendered once when they fit in memory.
 """
 
 from __future__ import annotations
@@ -81,24 +83,58 @@ def _save_pair(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
     cv2.imwrite(str(path), cv2.cvtColor((np.clip(both, 0, 1) * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR))
 
 
+class HeldOutRenders:
+    """The model's renders of held-out views (clamped to [0, 1], no colour correction), each
+    made once: evaluation, LPIPS and the diagnostics' renders of the same camera and frame
+    are the same bits (a render depends only on the model, the camera, the time and these
+    settings). Kept only while all of them fit in ``max_bytes``; else each call renders."""
+
+    def __init__(self, model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig, max_bytes: int = 256 * 2**20):
+        self.model, self.scene = model, scene
+        self.sh_degree, self.backend = cfg.model.sh_degree, cfg.backend
+        self.background = torch.tensor(cfg.background, dtype=torch.float32, device=model.params["means"].device)
+        size = sum(scene.cameras[c].height * scene.cameras[c].width * 3 * 4 for c in scene.test_ids) * scene.n_frames
+        self.keep = size <= max_bytes
+        self._done: dict[tuple[int, int], torch.Tensor] = {}
+
+    def matches(self, model: FreeTimeGaussians, sh_degree: int, background: torch.Tensor, backend: str) -> bool:
+        """Whether renders with these settings are the ones this object holds."""
+        return (model is self.model and sh_degree == self.sh_degree and backend == self.backend
+                and torch.equal(background, self.background))
+
+    @torch.no_grad()
+    def image(self, cam_idx: int, frame: int) -> torch.Tensor:
+        """The render [H, W, 3] of camera ``cam_idx`` at frame ``frame``."""
+        pred = self._done.get((cam_idx, frame))
+        if pred is None:
+            out, _ = render_view(self.model, self.scene.cameras[cam_idx], float(self.scene.times[frame]),
+                                 self.sh_degree, self.background, self.backend)
+            pred = out.image.clamp(0, 1)
+            if self.keep:
+                self._done[(cam_idx, frame)] = pred
+        return pred
+
+
 # Metrics that need no network (PSNR, SSIM, DSSIM): computed and saved first.
 CORE_METRICS = [name for name, m in METRICS.items() if m.lpips_net is None]
 
 
 @torch.no_grad()
 def evaluate(
-    model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig, out_dir: Path, n_saved: int = 3
+    model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig, out_dir: Path, n_saved: int = 3,
+    renders: HeldOutRenders | None = None,
 ) -> tuple[dict[str, float], list[Path]]:
     """PSNR, SSIM and DSSIM averaged over all held-out (camera, frame) pairs, plus a few saved
     renders; returns ``(metrics, saved_pngs)``. LPIPS is separate (``evaluate_lpips``) so that
     an optional network metric runs only after these numbers are on disk."""
     render_dir = out_dir / "renders"
     render_dir.mkdir(parents=True, exist_ok=True)
-    return _score(model, scene, cfg, CORE_METRICS, None, render_dir, n_saved)
+    return _score(renders or HeldOutRenders(model, scene, cfg), CORE_METRICS, None, render_dir, n_saved)
 
 
 @torch.no_grad()
-def evaluate_lpips(model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig) -> dict[str, float]:
+def evaluate_lpips(model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig,
+                   renders: HeldOutRenders | None = None) -> dict[str, float]:
     """LPIPS (the networks in ``cfg.eval_lpips``, both input conventions) over the held-out frames.
 
     ``{"lpips_missing": 1.0}`` when the weights are missing (the run records that it was
@@ -111,24 +147,23 @@ def evaluate_lpips(model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig) -> 
     if lpips is None:
         return {"lpips_missing": 1.0}
     names = [n for n in available_metrics(lpips) if METRICS[n].lpips_net is not None]
-    metrics, _ = _score(model, scene, cfg, names, lpips, None, 0)
+    metrics, _ = _score(renders or HeldOutRenders(model, scene, cfg), names, lpips, None, 0)
     metrics.pop("eval_frames")
     return metrics
 
 
-def _score(model, scene, cfg, names: list[str], lpips: dict | None, render_dir: Path | None,
+def _score(renders: HeldOutRenders, names: list[str], lpips: dict | None, render_dir: Path | None,
            n_saved: int) -> tuple[dict[str, float], list[Path]]:
-    """Render every held-out frame once and average the ``names`` metrics over frames."""
-    device = model.params["means"].device
-    background = torch.tensor(cfg.background, dtype=torch.float32, device=device)
+    """Average the ``names`` metrics of every held-out frame's render over frames."""
+    scene = renders.scene
+    device = renders.background.device
     saved = set(np.linspace(0, scene.n_frames - 1, n_saved).round().astype(int).tolist()) if n_saved else set()
     rows: list[dict[str, float]] = []
     artifacts: list[Path] = []
     for cam_idx in scene.test_ids:
         cam = scene.cameras[cam_idx]
         for f in range(scene.n_frames):
-            out, _ = render_view(model, cam, float(scene.times[f]), cfg.model.sh_degree, background, cfg.backend)
-            pred = out.image.clamp(0, 1)
+            pred = renders.image(cam_idx, f)
             gt = torch.from_numpy(scene.image(cam_idx, f)).to(device)
             with one_torch_thread():  # metrics independent of how many workers share the machine
                 rows.append(evaluate_images(pred, gt, lpips=lpips, names=names))

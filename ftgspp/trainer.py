@@ -33,7 +33,7 @@ from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
 from ftgspp.diagnostics import run_diagnostics
 from ftgspp.errors import InputError
-from ftgspp.evaluate import check_eval_lpips, evaluate, evaluate_lpips
+from ftgspp.evaluate import HeldOutRenders, check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, logged_photometric, opacity_4d, photometric, scale_penalty
 from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
@@ -158,7 +158,8 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     # optional metric (LPIPS) or diagnostic runs, so none of those can lose the run.
     save_model(model, cc, out_dir)
     clock = time.perf_counter()
-    metrics, artifacts = evaluate(model, scene, cfg, out_dir)
+    renders = HeldOutRenders(model, scene, cfg)  # each held-out view rendered once, for all three
+    metrics, artifacts = evaluate(model, scene, cfg, out_dir, renders=renders)
     metrics.update({
         "init_seconds": init_seconds,  # where a run's time goes besides training (benchmarks/runs_per_hour.py)
         "eval_seconds": time.perf_counter() - clock,
@@ -170,13 +171,14 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
     })
     _write_metrics(out_dir, metrics)
     clock = time.perf_counter()
-    metrics.update(evaluate_lpips(model, scene, cfg))
+    metrics.update(evaluate_lpips(model, scene, cfg, renders=renders))
     metrics["eval_lpips_seconds"] = time.perf_counter() - clock
     _write_metrics(out_dir, metrics)
     diag_files: list[Path] = []
     if cfg.diagnostics:  # lifetime / velocity / x-t / motion-error plots and the numbers studies tabulate
         clock = time.perf_counter()
-        diag = run_diagnostics(model, scene, cfg, out_dir / "diagnostics", figures=cfg.diagnostics_figures)
+        diag = run_diagnostics(model, scene, cfg, out_dir / "diagnostics", figures=cfg.diagnostics_figures,
+                               renders=renders)
         metrics.update(diag.metrics())
         metrics["diagnostics_seconds"] = time.perf_counter() - clock
         diag_files = list(diag.files.values())

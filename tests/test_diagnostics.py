@@ -326,3 +326,64 @@ def test_transient_share_is_measured_where_the_scene_marks_transient_pixels(tmp_
     assert m["lifetime_short_share_transient"] > 0.9 and m["lifetime_short_share_static"] < 0.1
     assert m["lifetime_transient_contrast"] == pytest.approx(
         m["lifetime_short_share_transient"] - m["lifetime_short_share_static"])
+
+
+@pytest.mark.parametrize("src,dst", [(192, 96), (256, 128), (1014, 507), (1352, 451), (37, 100), (50, 50), (7, 3)])
+def test_nearest_indices_pick_the_pixels_of_cv2s_nearest_resize(src, dst):
+    import cv2
+
+    from ftgspp.diagnostics_motion import nearest_indices
+
+    a = np.random.default_rng(src).random((src, 9), dtype=np.float32)
+    ref = cv2.resize(a, (9, dst), interpolation=cv2.INTER_NEAREST)  # the rows
+    np.testing.assert_array_equal(a[nearest_indices(src, dst)], ref)
+    ref = cv2.resize(a.T.copy(), (dst, 9), interpolation=cv2.INTER_NEAREST)  # the columns
+    np.testing.assert_array_equal(a.T[:, nearest_indices(src, dst)], ref)
+
+
+def test_ground_truth_of_a_downsampled_camera_is_cv2s_nearest_resize(tmp_path):
+    import cv2
+
+    from ftgspp.diagnostics_motion import load_ground_truth
+
+    model, is_obj = wall_and_object()
+    full = tiny_scene(tmp_path, model, is_obj)
+    small = Scene(name="tiny", root=tmp_path, cameras=[full.cameras[0].scaled(0.5)], frame_ids=np.array([1, 3]),
+                  fps=FPS, train_ids=[0], test_ids=[0], decode=full.decode, ground_truth=full.ground_truth)
+    gt = load_ground_truth(small, 0)
+    cam = small.cameras[0]
+    for name, field in (("depth", gt.depth), ("flow3d", gt.flow3d), ("objects", gt.objects)):
+        saved = np.load(tmp_path / "gt" / name / "cam00.npy")[[1, 3]]
+        ref = np.stack([cv2.resize(f.astype(np.float32), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
+                        for f in saved]).astype(field.dtype)  # fmt: skip
+        assert field.shape == ref.shape and np.array_equal(field, ref), name
+
+
+def test_held_out_renders_are_made_once_for_evaluation_and_diagnostics(tmp_path, monkeypatch):
+    """Evaluation, LPIPS and diagnostics share the held-out renders: each view is rendered
+    once, and every number is the one each computes with renders of its own."""
+    import ftgspp.evaluate as ev
+
+    model, is_obj = wall_and_object()
+    scene = tiny_scene(tmp_path, model, is_obj)
+    cfg = TrainConfig()
+    cfg.model.sh_degree = 0
+    alone, _ = ev.evaluate(model, scene, cfg, tmp_path / "alone")
+    diag_alone = run_diagnostics(model, scene, cfg, tmp_path / "d_alone", figures=False).metrics()
+    calls = []
+    real = ev.render_view
+    monkeypatch.setattr(ev, "render_view", lambda *a, **k: calls.append(a[2]) or real(*a, **k))
+    monkeypatch.setattr("ftgspp.diagnostics.render_frames", lambda *a, **k: pytest.fail("rendered again"))
+    renders = ev.HeldOutRenders(model, scene, cfg)
+    shared, _ = ev.evaluate(model, scene, cfg, tmp_path / "shared", renders=renders)
+    ev._score(renders, ["psnr"], None, None, 0)  # a second pass, as evaluate_lpips makes
+    diag = run_diagnostics(model, scene, cfg, tmp_path / "d_shared", figures=False, renders=renders).metrics()
+    assert sorted(calls) == sorted(float(t) for t in scene.times)  # one render per held-out frame
+    assert shared == alone
+    np.testing.assert_equal(diag, diag_alone)
+    other = TrainConfig()  # renders at other settings are not reused
+    assert not renders.matches(model, 3, renders.background, cfg.backend)
+    assert not renders.matches(model, 0, torch.ones(3), other.backend)
+    tight = ev.HeldOutRenders(model, scene, cfg, max_bytes=1)  # too large to keep: rendered on every call
+    tight.image(0, 0), tight.image(0, 0)
+    assert not tight.keep and len(calls) == scene.n_frames + 2

@@ -113,7 +113,7 @@ def test_an_unknown_eval_lpips_network_is_an_input_error_before_training(tiny_sc
 
 def test_model_and_core_metrics_are_on_disk_before_optional_metrics_run(tiny_scene_dir, tiny_scene, tmp_path,
                                                                        monkeypatch):
-    def exploding_lpips(model, scene, cfg):
+    def exploding_lpips(model, scene, cfg, renders=None):
         assert (tmp_path / "gaussians.pt").exists()
         assert "psnr" in json.loads((tmp_path / "metrics.json").read_text())
         raise RuntimeError("optional metric failed")

@@ -5,7 +5,7 @@ disk. A study would otherwise start with every worker compiling them at once and
 nothing for minutes; ``study run`` instead checks ``kernels_cached()`` and, when the cache is
 cold, says so and runs ``python -m ftgspp.bench.warmup`` first, which calls every kernel once
 on tiny inputs (the rasterizer forward and backward, the fused prepare node, the SSIM loss, the
-colour-aligned PSNR's fit).
+colour-aligned PSNR's fit, the relocation statistics).
 
     python -m ftgspp.bench.warmup        # prints the seconds it took
 """
@@ -19,11 +19,12 @@ import time
 def _dispatchers() -> list:
     from ftgspp import colour_fit, ssim_cpu
     from ftgspp.render import cpu_kernels, prepare_kernels
+    from ftgspp.strategy import relocate
 
     return [cpu_kernels.bin_gaussians, cpu_kernels.render_forward, cpu_kernels.render_backward,
             cpu_kernels.reduce_pair_grads, prepare_kernels.prepare_forward, prepare_kernels.prepare_backward,
             ssim_cpu.ssim_forward, ssim_cpu.ssim_backward, colour_fit.normal_equations, colour_fit.cholesky_solve,
-            colour_fit.apply_affine]
+            colour_fit.apply_affine, relocate._add_visible]
 
 
 def kernels_cached() -> bool:
@@ -46,6 +47,7 @@ def warm_up() -> float:
     from ftgspp.metrics import ssim_same
     from ftgspp.render import cpu
     from ftgspp.render.prepare import prepare
+    from ftgspp.strategy import relocate
 
     t0 = time.perf_counter()
     means2d = torch.tensor([[8.0, 8.0], [20.0, 9.0]], requires_grad=True)
@@ -58,6 +60,8 @@ def warm_up() -> float:
     (p.means2d.sum() + p.colors.sum()).backward()
     (1 - ssim_same(torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3))).backward()
     colour_aligned_np(np.random.default_rng(0).random((64, 3)), np.random.default_rng(1).random((64, 3)))
+    relocate._add_visible(np.zeros(2, np.float32), np.zeros(2, np.float32), np.ones(2, np.float32),
+                          p.radii.numpy()[:2])
     return time.perf_counter() - t0
 
 

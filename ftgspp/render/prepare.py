@@ -42,7 +42,7 @@ class Prepared(NamedTuple):
     colors: Tensor  # [N, D] SH colours along the viewing directions
     opacities: Tensor  # [N] sigmoid(o) * phi(t)
     depths: Tensor  # [N] camera-space z of the centres
-    radii: Tensor  # [N] int32, 0 = culled
+    radii: Tensor  # [N, 2] int32 pixel radius per axis, 0 = culled
     temporal: Tensor  # [N] phi(t)
     means: Tensor  # [N, 3] centres at time t (world)
 

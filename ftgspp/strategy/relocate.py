@@ -13,11 +13,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
+from numba import njit
 from torch import nn
 
 from ftgspp.config import StrategyConfig
 from ftgspp.errors import InputError
+from ftgspp.runtime.jit import JIT
 from ftgspp.strategy.ops import copy_gaussians, reset_moments
 from ftgspp.strategy.policies import MCMC_CLAMPS, MOMENT_RESETS, POLICIES, choose_relocation, mcmc_opacity_scale
 
@@ -42,12 +45,17 @@ class Relocator:
     @torch.no_grad()
     def accumulate(self, state: dict[str, torch.Tensor], means2d_grad: torch.Tensor, radii: torch.Tensor) -> None:
         """Add ‖∇ means2d‖ of the visible Gaussians (radii [N, 2] > 0) after a backward pass."""
+        grad2d, count = state["grad2d"], state["count"]
+        norms = means2d_grad.norm(dim=-1).to(grad2d.device)  # torch's norm: its bits differ with its kernel dispatch
+        if grad2d.device.type == "cpu" and radii.device.type == "cpu" and radii.ndim == 2:
+            # one pass instead of five tensor operations; the same bits (the adds below, row by row)
+            _add_visible(grad2d.numpy(), count.numpy(), norms.numpy(), radii.contiguous().numpy())
+            return
         # Masked adds instead of boolean indexing (half the time; the same bits: adding 0.0 to a
         # non-negative sum keeps it, and each row's norm does not depend on the rows around it).
-        visible = (radii > 0).all(dim=-1).to(state["grad2d"].device)
-        norms = means2d_grad.norm(dim=-1).to(state["grad2d"].device)
-        state["grad2d"].add_(torch.where(visible, norms, 0.0))
-        state["count"].add_(visible)
+        visible = (radii > 0).all(dim=-1).to(grad2d.device)
+        grad2d.add_(torch.where(visible, norms, 0.0))
+        count.add_(visible)
 
     def due(self, step: int) -> bool:
         """Relocate after ``step`` (1-based)?"""
@@ -89,3 +97,13 @@ class Relocator:
         moved = sources if self.cfg.reset_moments == "sources" else torch.cat([dead, sources])
         reset_moments(optimizer, params, moved)
         return len(dead)
+
+
+@njit(**JIT)
+def _add_visible(grad2d: np.ndarray, count: np.ndarray, norms: np.ndarray, radii: np.ndarray) -> None:
+    """grad2d[i] += norms[i] and count[i] += 1 where both radii of row i are > 0 (float32, in place)."""
+    one = np.float32(1.0)
+    for i in range(norms.shape[0]):
+        if radii[i, 0] > 0 and radii[i, 1] > 0:
+            grad2d[i] += norms[i]
+            count[i] += one

@@ -26,6 +26,7 @@ from typing import Any, Callable
 from ftgspp.errors import InputError
 from harness.run import lease
 from harness.run.launchers import check_launcher, check_launcher_args, launch, split_launcher_args
+from harness.run.prewarm import prewarm
 from harness.run.scenes import Generator, ensure_scene, scene_lock
 from harness.run.task import JobInfo, RunTask, TrainFn
 from harness.spec.files import load_study
@@ -216,6 +217,8 @@ def run_study(
     check_launcher(launcher, uri)
     check_launcher_args(launcher, launcher_args, Path(out_root).resolve())
     check_store(uri)  # ... or here, before anything is written
+    # the workers import and load their kernels while this process opens the store and makes scenes
+    warm = prewarm(launcher, jobs, launcher_args) if train_fn is None else None
 
     store = Store(uri)
     exp_id = store.experiment_id(exp_name)  # created once, before any worker starts
@@ -237,6 +240,8 @@ def run_study(
     for rec in elsewhere:
         echo(f"  running elsewhere: {rec.tags.get('mlflow.runName', rec.key)} ({lease.describe(rec)})")
     if not todo:
+        if warm is not None:
+            warm.wait()  # nothing to run: let the warm-up end before the process does
         return outcome
     profile = study.profile(sel.profile)
     echo(f"expected: {profile.estimate(len(todo), jobs)}")
@@ -267,6 +272,8 @@ def run_study(
     # progress bars of parallel workers would interleave (progress is not part of the hash)
     quiet = ["progress=false"] if jobs > 1 or launcher in ("local", "slurm") else []
     job_overrides = [[*p.spec.overrides, *quiet, f"hydra.sweep.subdir={p.spec.label}"] for p in todo]
+    if warm is not None:
+        warm.wait()  # the launcher reuses these workers (run.prewarm)
     try:
         returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=jobs, job_name=f"study_{name}",
                          launcher=launcher, launcher_args=launcher_args)
