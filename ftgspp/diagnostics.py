@@ -172,7 +172,7 @@ def run_diagnostics(
     bg = torch.tensor(cfg.background, dtype=torch.float32, device=model.params["means"].device)
     where = f"{cam.name}, frame {frame} (t = {t:.3f} s)"
     files: dict[str, Path] = {}
-    if renders is not None and not renders.matches(model, sh, bg, backend):
+    if renders is not None and not renders.matches(model, scene, sh, bg, backend):
         renders = None
 
     def frames_at(ids: list[int]) -> np.ndarray:  # renders of camera cam_i, [F, H, W, 3] float32

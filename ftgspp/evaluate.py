@@ -86,8 +86,9 @@ def _save_pair(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
 class HeldOutRenders:
     """The model's renders of held-out views (clamped to [0, 1], no colour correction), each
     made once: evaluation, LPIPS and the diagnostics' renders of the same camera and frame
-    are the same bits (a render depends only on the model, the camera, the time and these
-    settings). Kept only while all of them fit in ``max_bytes``; else each call renders."""
+    are the same bits (a render depends only on the model's parameters, the scene's camera
+    and time, and these settings). Kept only while all of them fit in ``max_bytes``; else each
+    call renders. The model must not change while this object is in use."""
 
     def __init__(self, model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig, max_bytes: int = 256 * 2**20):
         self.model, self.scene = model, scene
@@ -97,10 +98,23 @@ class HeldOutRenders:
         self.keep = size <= max_bytes
         self._done: dict[tuple[int, int], torch.Tensor] = {}
 
-    def matches(self, model: FreeTimeGaussians, sh_degree: int, background: torch.Tensor, backend: str) -> bool:
+    def matches(self, model: FreeTimeGaussians, scene: Scene, sh_degree: int, background: torch.Tensor,
+                backend: str) -> bool:
         """Whether renders with these settings are the ones this object holds."""
-        return (model is self.model and sh_degree == self.sh_degree and backend == self.backend
-                and torch.equal(background, self.background))
+        return (model is self.model and scene is self.scene and sh_degree == self.sh_degree
+                and backend == self.backend and torch.equal(background, self.background))
+
+    @classmethod
+    def of(cls, model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig,
+           renders: HeldOutRenders | None) -> HeldOutRenders:
+        """``renders`` when given (``ValueError`` unless they are of this model, scene and
+        ``cfg``'s settings), else a new object."""
+        if renders is None:
+            return cls(model, scene, cfg)
+        background = torch.tensor(cfg.background, dtype=torch.float32, device=renders.background.device)
+        if not renders.matches(model, scene, cfg.model.sh_degree, background, cfg.backend):
+            raise ValueError("renders of another model, scene or render settings")
+        return renders
 
     @torch.no_grad()
     def image(self, cam_idx: int, frame: int) -> torch.Tensor:
@@ -126,10 +140,11 @@ def evaluate(
 ) -> tuple[dict[str, float], list[Path]]:
     """PSNR, SSIM and DSSIM averaged over all held-out (camera, frame) pairs, plus a few saved
     renders; returns ``(metrics, saved_pngs)``. LPIPS is separate (``evaluate_lpips``) so that
-    an optional network metric runs only after these numbers are on disk."""
+    an optional network metric runs only after these numbers are on disk. ``renders``: the
+    held-out renders to score, shared with later passes (``HeldOutRenders``)."""
     render_dir = out_dir / "renders"
     render_dir.mkdir(parents=True, exist_ok=True)
-    return _score(renders or HeldOutRenders(model, scene, cfg), CORE_METRICS, None, render_dir, n_saved)
+    return _score(HeldOutRenders.of(model, scene, cfg, renders), CORE_METRICS, None, render_dir, n_saved)
 
 
 @torch.no_grad()
@@ -147,7 +162,7 @@ def evaluate_lpips(model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig,
     if lpips is None:
         return {"lpips_missing": 1.0}
     names = [n for n in available_metrics(lpips) if METRICS[n].lpips_net is not None]
-    metrics, _ = _score(renders or HeldOutRenders(model, scene, cfg), names, lpips, None, 0)
+    metrics, _ = _score(HeldOutRenders.of(model, scene, cfg, renders), names, lpips, None, 0)
     metrics.pop("eval_frames")
     return metrics
 

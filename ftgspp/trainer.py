@@ -182,6 +182,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
         metrics.update(diag.metrics())
         metrics["diagnostics_seconds"] = time.perf_counter() - clock
         diag_files = list(diag.files.values())
+    del renders  # up to 256 MB of renders
     metrics["peak_rss_mb"] = _peak_rss_mb()  # now including evaluation and diagnostics
     _write_metrics(out_dir, metrics)
     tracker.log_metrics(metrics)

@@ -348,42 +348,62 @@ def test_ground_truth_of_a_downsampled_camera_is_cv2s_nearest_resize(tmp_path):
 
     model, is_obj = wall_and_object()
     full = tiny_scene(tmp_path, model, is_obj)
-    small = Scene(name="tiny", root=tmp_path, cameras=[full.cameras[0].scaled(0.5)], frame_ids=np.array([1, 3]),
-                  fps=FPS, train_ids=[0], test_ids=[0], decode=full.decode, ground_truth=full.ground_truth)
-    gt = load_ground_truth(small, 0)
-    cam = small.cameras[0]
-    for name, field in (("depth", gt.depth), ("flow3d", gt.flow3d), ("objects", gt.objects)):
-        saved = np.load(tmp_path / "gt" / name / "cam00.npy")[[1, 3]]
-        ref = np.stack([cv2.resize(f.astype(np.float32), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
-                        for f in saved]).astype(field.dtype)  # fmt: skip
-        assert field.shape == ref.shape and np.array_equal(field, ref), name
+    (tmp_path / "gt" / "transient").mkdir()
+    np.save(tmp_path / "gt" / "transient" / "cam00.npy", np.load(tmp_path / "gt" / "objects" / "cam00.npy") > 0)
+    for factor in (0.5, 0.37):
+        small = Scene(name="tiny", root=tmp_path, cameras=[full.cameras[0].scaled(factor)], frame_ids=np.array([1, 3]),
+                      fps=FPS, train_ids=[0], test_ids=[0], decode=full.decode, ground_truth=full.ground_truth)
+        gt = load_ground_truth(small, 0)
+        cam = small.cameras[0]
+        for name, field in (("depth", gt.depth), ("flow3d", gt.flow3d), ("objects", gt.objects),
+                            ("transient", gt.transient)):
+            saved = np.load(tmp_path / "gt" / name / "cam00.npy")[[1, 3]]
+            ref = np.stack([cv2.resize(f.astype(np.float32), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
+                            for f in saved])  # the loader's way before the gather: float32 frames, resized
+            ref = ref > 0 if name == "transient" else ref.astype(field.dtype)
+            assert field.shape == ref.shape == (2, cam.height, cam.width, *saved.shape[3:]), (name, factor)
+            assert np.array_equal(field, ref), (name, factor)
 
 
 def test_held_out_renders_are_made_once_for_evaluation_and_diagnostics(tmp_path, monkeypatch):
     """Evaluation, LPIPS and diagnostics share the held-out renders: each view is rendered
     once, and every number is the one each computes with renders of its own."""
+    import dataclasses
+
     import ftgspp.evaluate as ev
 
     model, is_obj = wall_and_object()
-    scene = tiny_scene(tmp_path, model, is_obj)
+    one = tiny_scene(tmp_path, model, is_obj)  # two cameras: the held-out one is not the training one
+    aside = dataclasses.replace(one.cameras[0], name="cam01", T=np.array([0.3, -0.2, 0.0]))
+    scene = dataclasses.replace(one, cameras=[aside, one.cameras[0]], train_ids=[0], test_ids=[1])
     cfg = TrainConfig()
     cfg.model.sh_degree = 0
     alone, _ = ev.evaluate(model, scene, cfg, tmp_path / "alone")
-    diag_alone = run_diagnostics(model, scene, cfg, tmp_path / "d_alone", figures=False).metrics()
+    diag_alone = run_diagnostics(model, scene, cfg, tmp_path / "d_alone").metrics()
     calls = []
     real = ev.render_view
     monkeypatch.setattr(ev, "render_view", lambda *a, **k: calls.append(a[2]) or real(*a, **k))
-    monkeypatch.setattr("ftgspp.diagnostics.render_frames", lambda *a, **k: pytest.fail("rendered again"))
+    import ftgspp.diagnostics as dg
+
+    real_frames = dg.render_frames  # the figure's lifetime groups render subsets of the model: those may
+    monkeypatch.setattr(dg, "render_frames",
+                        lambda m, *a, **k: pytest.fail("rendered again") if m is model else real_frames(m, *a, **k))
     renders = ev.HeldOutRenders(model, scene, cfg)
     shared, _ = ev.evaluate(model, scene, cfg, tmp_path / "shared", renders=renders)
     ev._score(renders, ["psnr"], None, None, 0)  # a second pass, as evaluate_lpips makes
-    diag = run_diagnostics(model, scene, cfg, tmp_path / "d_shared", figures=False, renders=renders).metrics()
+    diag = run_diagnostics(model, scene, cfg, tmp_path / "d_shared", renders=renders).metrics()
     assert sorted(calls) == sorted(float(t) for t in scene.times)  # one render per held-out frame
     assert shared == alone
     np.testing.assert_equal(diag, diag_alone)
-    other = TrainConfig()  # renders at other settings are not reused
-    assert not renders.matches(model, 3, renders.background, cfg.backend)
-    assert not renders.matches(model, 0, torch.ones(3), other.backend)
+    for d in ("d_alone", "d_shared"):  # the figures' render too (velocity map)
+        assert (tmp_path / d / "velocity_map.png").is_file()
+    assert (tmp_path / "d_alone" / "velocity_map.png").read_bytes() == (tmp_path / "d_shared" / "velocity_map.png").read_bytes()
+    # renders at other settings, or of another scene or model, are not reused
+    assert not renders.matches(model, scene, 3, renders.background, cfg.backend)
+    assert not renders.matches(model, scene, 0, torch.ones(3), cfg.backend)
+    assert not renders.matches(model, one, 0, renders.background, cfg.backend)
+    with pytest.raises(ValueError, match="another model"):
+        ev.evaluate(wall_and_object()[0], scene, cfg, tmp_path / "other", renders=renders)
     tight = ev.HeldOutRenders(model, scene, cfg, max_bytes=1)  # too large to keep: rendered on every call
     tight.image(0, 0), tight.image(0, 0)
     assert not tight.keep and len(calls) == scene.n_frames + 2

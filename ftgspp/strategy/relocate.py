@@ -47,12 +47,15 @@ class Relocator:
         """Add ‖∇ means2d‖ of the visible Gaussians (radii [N, 2] > 0) after a backward pass."""
         grad2d, count = state["grad2d"], state["count"]
         norms = means2d_grad.norm(dim=-1).to(grad2d.device)  # torch's norm: its bits differ with its kernel dispatch
-        if grad2d.device.type == "cpu" and radii.device.type == "cpu" and radii.ndim == 2:
+        n = norms.shape[0]
+        if (grad2d.device.type == radii.device.type == "cpu" and tuple(radii.shape) == (n, 2)
+                and grad2d.shape == count.shape == norms.shape
+                and grad2d.dtype == count.dtype == norms.dtype == torch.float32):
             # one pass instead of five tensor operations; the same bits (the adds below, row by row)
             _add_visible(grad2d.numpy(), count.numpy(), norms.numpy(), radii.contiguous().numpy())
             return
-        # Masked adds instead of boolean indexing (half the time; the same bits: adding 0.0 to a
-        # non-negative sum keeps it, and each row's norm does not depend on the rows around it).
+        # Elsewhere (a GPU), masked adds instead of boolean indexing (half the time; the same bits:
+        # adding 0.0 to a non-negative sum keeps it, and each row's norm does not depend on the others).
         visible = (radii > 0).all(dim=-1).to(grad2d.device)
         grad2d.add_(torch.where(visible, norms, 0.0))
         count.add_(visible)

@@ -11,7 +11,9 @@ match; with other ``hydra.launcher.*`` arguments it would start new ones, so ``p
 not used then).
 
 Nothing a run computes depends on this: the kernels are called on tiny inputs with torch's
-random state saved and restored, and every run seeds its own generators.
+random state saved and restored, and every run seeds its own generators. A failed warm-up is
+reported in one line and the launcher starts workers of its own. A study with nothing left
+to run waits for the warm-up before it exits (a few seconds).
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ RUN_MODULES = ("harness.run.task", "harness.run.training", "ftgspp.trainer", "ft
 
 
 def _warm_worker() -> int:
-    """In a worker: import what a run needs and load the cpu kernels; returns the worker's pid."""
+    """In a worker: import what a run needs and, when Numba's cache holds them, load the cpu
+    kernels; returns the worker's pid."""
     import importlib
 
     for name in RUN_MODULES:

@@ -241,7 +241,7 @@ def run_study(
         echo(f"  running elsewhere: {rec.tags.get('mlflow.runName', rec.key)} ({lease.describe(rec)})")
     if not todo:
         if warm is not None:
-            warm.wait()  # nothing to run: let the warm-up end before the process does
+            warm.wait()  # nothing to run: the warm-up ends before the process does (seconds)
         return outcome
     profile = study.profile(sel.profile)
     echo(f"expected: {profile.estimate(len(todo), jobs)}")
@@ -251,6 +251,10 @@ def run_study(
             ensure_scene(scene, generate, echo)
     if train_fn is None and launcher != "slurm":  # workers on this machine train with the cpu kernels
         warm_kernels(echo)
+    if warm is not None:  # before the parent run exists: an interrupt here leaves nothing RUNNING
+        warm.wait()
+        if warm.error is not None:
+            echo(f"  worker warm-up failed ({type(warm.error).__name__}: {warm.error}); the launcher starts its own")
     parent_id, stamp = _open_parent(store, exp_id, study, sel, jobs, launcher, launcher_args, command, planned, todo)
     outcome.parent_run_id = parent_id
     # absolute: submitit's folder lives under it and jobs on other nodes must find it
@@ -272,9 +276,7 @@ def run_study(
     # progress bars of parallel workers would interleave (progress is not part of the hash)
     quiet = ["progress=false"] if jobs > 1 or launcher in ("local", "slurm") else []
     job_overrides = [[*p.spec.overrides, *quiet, f"hydra.sweep.subdir={p.spec.label}"] for p in todo]
-    if warm is not None:
-        warm.wait()  # the launcher reuses these workers (run.prewarm)
-    try:
+    try:  # through the workers warmed above (run.prewarm), which the launcher reuses
         returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=jobs, job_name=f"study_{name}",
                          launcher=launcher, launcher_args=launcher_args)
         _tally(outcome, todo, returns)

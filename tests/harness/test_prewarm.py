@@ -27,5 +27,11 @@ def test_the_launcher_runs_its_jobs_in_the_warmed_workers(tmp_path: Path) -> Non
     assert isinstance(warm, Prewarm)
     warm.wait()
     assert warm.error is None and len(set(warm.pids)) == 2 and os.getpid() not in warm.pids
-    returns = launch([["seed=0"], ["seed=1"], ["seed=2"]], _pid, sweep_dir=tmp_path / "sweep", jobs=2)
-    assert {r.return_value for r in returns} <= set(warm.pids)
+    try:
+        returns = launch([["seed=0"], ["seed=1"], ["seed=2"]], _pid, sweep_dir=tmp_path / "sweep", jobs=2)
+        assert {r.return_value for r in returns} <= set(warm.pids)
+    finally:  # the workers hold torch and MLflow: end them now rather than at loky's idle timeout
+        from joblib.externals.loky import reusable_executor
+
+        if reusable_executor._executor is not None:
+            reusable_executor._executor.shutdown(wait=True, kill_workers=True)

@@ -177,9 +177,15 @@ def test_statistics_add_the_gradient_norm_of_visible_gaussians_only():
         assert state["count"][i].item() == (2.0 if vis else 0.0)
 
 
-def test_statistics_kernel_adds_the_same_bits_as_the_tensor_formula():
+def test_statistics_kernel_adds_the_same_bits_as_the_tensor_formula(monkeypatch):
     """The cpu path (one Numba pass) against the masked tensor adds it replaced, bit for bit,
-    over many passes of random gradients with some radii zero on one axis or both."""
+    over many passes of random gradients (NaN and inf in rows nobody saw) with some radii zero
+    on one axis or both, given as a non-contiguous view."""
+    from ftgspp.strategy import relocate
+
+    calls = []
+    kernel = relocate._add_visible
+    monkeypatch.setattr(relocate, "_add_visible", lambda *a: calls.append(1) or kernel(*a))
     reloc = Relocator(StrategyConfig())
     n = 4099
     state = reloc.initialize_state(n)
@@ -187,10 +193,14 @@ def test_statistics_kernel_adds_the_same_bits_as_the_tensor_formula():
     gen = torch.Generator().manual_seed(3)
     for _ in range(20):
         g = torch.randn(n, 2, generator=gen) * torch.rand(n, 1, generator=gen) ** 4 * 100
-        radii = torch.randint(0, 3, (n, 2), generator=gen, dtype=torch.int32)
+        radii = torch.randint(0, 3, (2, n), generator=gen, dtype=torch.int32).t()  # [N, 2], not contiguous
+        unseen = (radii == 0).any(dim=-1)
+        g[unseen & (torch.rand(n, generator=gen) < 0.2)] = float("nan")
+        g[unseen & (torch.rand(n, generator=gen) < 0.2), 1] = float("inf")
         reloc.accumulate(state, g, radii)
         visible = (radii > 0).all(dim=-1)
         grad2d.add_(torch.where(visible, g.norm(dim=-1), 0.0))
         count.add_(visible)
+    assert len(calls) == 20 and torch.isfinite(state["grad2d"]).all()
     assert torch.equal(state["grad2d"], grad2d) and torch.equal(state["count"], count)
     assert 0 < int(count.min()) < int(count.max()) < 20  # rows unseen in some passes, seen in others
