@@ -389,15 +389,15 @@ def test_held_out_renders_are_made_once_for_evaluation_and_diagnostics(tmp_path,
     monkeypatch.setattr(dg, "render_frames",
                         lambda m, *a, **k: pytest.fail("rendered again") if m is model else real_frames(m, *a, **k))
     renders = ev.HeldOutRenders(model, scene, cfg)
-    shared, _ = ev.evaluate(model, scene, cfg, tmp_path / "shared", renders=renders)
+    reused, _ = ev.evaluate(model, scene, cfg, tmp_path / "reused", renders=renders)
     ev._score(renders, ["psnr"], None, None, 0)  # a second pass, as evaluate_lpips makes
-    diag = run_diagnostics(model, scene, cfg, tmp_path / "d_shared", renders=renders).metrics()
+    diag = run_diagnostics(model, scene, cfg, tmp_path / "d_reused", renders=renders).metrics()
     assert sorted(calls) == sorted(float(t) for t in scene.times)  # one render per held-out frame
-    assert shared == alone
+    assert reused == alone
     np.testing.assert_equal(diag, diag_alone)
-    for d in ("d_alone", "d_shared"):  # the figures' render too (velocity map)
+    for d in ("d_alone", "d_reused"):  # the figures' render too (velocity map)
         assert (tmp_path / d / "velocity_map.png").is_file()
-    assert (tmp_path / "d_alone" / "velocity_map.png").read_bytes() == (tmp_path / "d_shared" / "velocity_map.png").read_bytes()
+    assert (tmp_path / "d_alone" / "velocity_map.png").read_bytes() == (tmp_path / "d_reused" / "velocity_map.png").read_bytes()
     # renders at other settings, or of another scene or model, are not reused
     assert not renders.matches(model, scene, 3, renders.background, cfg.backend)
     assert not renders.matches(model, scene, 0, torch.ones(3), cfg.backend)

@@ -86,11 +86,15 @@ def check_launcher_args(launcher: str, args: list[str], sweep_dir: Path) -> None
         raise InputError(" ".join(args), f"not valid for --launcher {launcher} ({error_line(exc)})") from None
 
 
+def effective_launcher(launcher: str, jobs: int) -> str:
+    """The launcher that runs the jobs: ``basic`` with ``jobs`` > 1 is ``joblib``."""
+    return "joblib" if launcher == "basic" and jobs > 1 else launcher
+
+
 def launcher_overrides(launcher: str, sweep_dir: Path, jobs: int, job_name: str) -> list[str]:
     """Hydra-level overrides selecting the launcher and where jobs write."""
     overrides = [f"hydra.sweep.dir={sweep_dir.as_posix()}", f"hydra.job.name={job_name}"]
-    if launcher == "basic" and jobs > 1:
-        launcher = "joblib"
+    launcher = effective_launcher(launcher, jobs)
     overrides.append(f"hydra/launcher={launcher}")
     if launcher == "joblib":
         overrides.append(f"hydra.launcher.n_jobs={jobs}")

@@ -23,6 +23,8 @@ import os
 import threading
 from typing import Any
 
+from harness.run.launchers import effective_launcher
+
 # what a job imports before its run starts (run.task and the trainer behind it)
 RUN_MODULES = ("harness.run.task", "harness.run.training", "ftgspp.trainer", "ftgspp.data.load", "ftgspp.diagnostics",
                "ftgspp.evaluate", "mlflow")
@@ -82,7 +84,6 @@ class Prewarm:
 
 def prewarm(launcher: str, jobs: int, launcher_args: list[str]) -> Prewarm | None:
     """Warm ``jobs`` joblib workers in the background when the study will run through them."""
-    effective = "joblib" if launcher == "basic" and jobs > 1 else launcher
-    if effective != "joblib" or jobs < 2 or launcher_args:
+    if effective_launcher(launcher, jobs) != "joblib" or jobs < 2 or launcher_args:
         return None
     return Prewarm(jobs)
