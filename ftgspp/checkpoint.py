@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ftgspp.color import ColorCorrection
+from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import TrainConfig, train_config_from_dict
 from ftgspp.errors import InputError
 from ftgspp.model import FreeTimeGaussians

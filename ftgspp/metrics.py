@@ -220,8 +220,8 @@ def colour_aligned(pred: Tensor, gt: Tensor) -> Tensor:
     ``[pred, 1] A`` with ``A`` [4, 3] minimising ‖[pred, 1] A − gt‖², clamped to [0, 1].
     A render that differs from the ground truth by a global colour transform scores as if it
     did not (the colour-corrected metrics some 3DGS evaluations offer). [B, H, W, 3] -> same
-    (fitted in float64, the same bits on every call and machine: ``ftgspp.colour_fit``)."""
-    from ftgspp.colour_fit import colour_aligned_np
+    (fitted in float64, the same bits on every call and machine: ``ftgspp.colour_alignment``)."""
+    from ftgspp.colour_alignment import colour_aligned_np
 
     p = pred.detach().to("cpu", torch.float64).reshape(pred.shape[0], -1, 3).numpy()
     g = gt.detach().to("cpu", torch.float64).reshape(gt.shape[0], -1, 3).numpy()

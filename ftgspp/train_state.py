@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ftgspp.color import ColorCorrection
+from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
 from ftgspp.init import initialize

@@ -28,10 +28,10 @@ import torch
 from tqdm import tqdm
 
 from ftgspp.checkpoint import save_config, save_model
-from ftgspp.color import ColorCorrection
+from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
-from ftgspp.diagnostics import run_diagnostics
+from ftgspp.diagnostics.diagnose import run_diagnostics
 from ftgspp.errors import InputError
 from ftgspp.evaluate import HeldOutRenders, check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.losses import gate_penalty, logged_photometric, opacity_4d, photometric, scale_penalty

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from ftgspp.checkpoint import load_run, save_config, save_model
-from ftgspp.color import ColorCorrection
+from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.errors import InputError
 from ftgspp.model import FreeTimeGaussians

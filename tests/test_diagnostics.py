@@ -20,10 +20,10 @@ from scipy.optimize import brentq
 
 from ftgspp.config import InitConfig, ModelConfig, TrainConfig
 from ftgspp.data.scene import Camera, Scene
-from ftgspp.diagnostics import run_diagnostics
-from ftgspp.diagnostics_colors import color_wheel, flow_to_rgb
-from ftgspp.diagnostics_lifetimes import lifetime_fractions, lifetime_histogram, subset_model
-from ftgspp.diagnostics_motion import composite, motion_error, pixel_velocities, velocity_map, xt_slice
+from ftgspp.diagnostics.diagnose import run_diagnostics
+from ftgspp.diagnostics.flow_colors import color_wheel, flow_to_rgb
+from ftgspp.diagnostics.lifetimes import lifetime_fractions, lifetime_histogram, subset_model
+from ftgspp.diagnostics.motion import composite, motion_error, pixel_velocities, velocity_map, xt_slice
 from ftgspp.errors import InputError
 from ftgspp.model import FreeTimeGaussians, duration_to_param
 
@@ -281,11 +281,11 @@ def test_run_diagnostics_writes_readable_outputs(tmp_path):
 
 
 def test_diagnose_cli_on_a_generated_scene(tmp_path, capsys):
-    synthetic = pytest.importorskip("ftgspp.data.synthetic")
-    from ftgspp.diagnostics import main
+    from ftgspp.data.synthetic.generate import generate
+    from ftgspp.diagnostics.diagnose import main
 
-    root = synthetic.generate(tmp_path / "scene", layout="easyvolcap", preset="studio", seed=0,
-                              n_cameras=3, n_frames=3, width=48, height=36, supersample=1)  # fmt: skip
+    root = generate(tmp_path / "scene", layout="easyvolcap", preset="studio", seed=0,
+                    n_cameras=3, n_frames=3, width=48, height=36, supersample=1)  # fmt: skip
     model, _ = wall_and_object(moving=True)
     run = tmp_path / "run"
     run.mkdir()
@@ -332,7 +332,7 @@ def test_transient_share_is_measured_where_the_scene_marks_transient_pixels(tmp_
 def test_nearest_indices_pick_the_pixels_of_cv2s_nearest_resize(src, dst):
     import cv2
 
-    from ftgspp.diagnostics_motion import nearest_indices
+    from ftgspp.diagnostics.motion import nearest_indices
 
     a = np.random.default_rng(src).random((src, 9), dtype=np.float32)
     ref = cv2.resize(a, (9, dst), interpolation=cv2.INTER_NEAREST)  # the rows
@@ -344,7 +344,7 @@ def test_nearest_indices_pick_the_pixels_of_cv2s_nearest_resize(src, dst):
 def test_ground_truth_of_a_downsampled_camera_is_cv2s_nearest_resize(tmp_path):
     import cv2
 
-    from ftgspp.diagnostics_motion import load_ground_truth
+    from ftgspp.diagnostics.motion import load_ground_truth
 
     model, is_obj = wall_and_object()
     full = tiny_scene(tmp_path, model, is_obj)
@@ -383,7 +383,7 @@ def test_held_out_renders_are_made_once_for_evaluation_and_diagnostics(tmp_path,
     calls = []
     real = ev.render_view
     monkeypatch.setattr(ev, "render_view", lambda *a, **k: calls.append(a[2]) or real(*a, **k))
-    import ftgspp.diagnostics as dg
+    import ftgspp.diagnostics.diagnose as dg
 
     real_frames = dg.render_frames  # the figure's lifetime groups render subsets of the model: those may
     monkeypatch.setattr(dg, "render_frames",

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from test_diagnostics import camera, object_masks, wall_and_object
 
-from ftgspp.diagnostics_lifetimes import mask_weights, partition_scores, role_switch_score
-from ftgspp.diagnostics_motion import composite, static_flicker
+from ftgspp.diagnostics.lifetimes import mask_weights, partition_scores, role_switch_score
+from ftgspp.diagnostics.motion import composite, static_flicker
 
 
 def test_partition_scores_by_hand():

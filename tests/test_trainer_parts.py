@@ -19,10 +19,10 @@ import torch
 from test_trainer import params, small_cfg
 
 import ftgspp.trainer as trainer
-from ftgspp.color import ColorCorrection
+from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import DataConfig, LossConfig
 from ftgspp.data.load import load_scene
-from ftgspp.data.synthetic import generate
+from ftgspp.data.synthetic.generate import generate
 from ftgspp.errors import InputError
 from ftgspp.evaluate import evaluate
 from ftgspp.metrics import lpips_distance, ssim_same

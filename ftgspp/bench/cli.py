@@ -39,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--asm", action="store_true", help="count the vector registers in the raster kernels "
                         "(compiles them in a child process with an empty cache)")
     render.add_argument("--target", default="host", help="LLVM CPU to compile the kernels for (default: host)")
-    train = sub.add_parser("train", help="whole training iterations of every backend (ftgspp/bench/train.py)")
+    train = sub.add_parser("train", help="whole training iterations of every backend (ftgspp/bench/train_speed.py)")
     train.add_argument("--iterations", type=int, default=200)
     train.add_argument("--budget", type=int, default=5000, help="number of Gaussians")
     train.add_argument("--repeats", type=int, default=2)
@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
 
             print(format_render_table(result))
         else:
-            from ftgspp.bench.train import format_train_table
+            from ftgspp.bench.train_speed import format_train_table
 
             print(format_train_table(result))
         return 0
@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result) if args.json else format_render_table(result))
         return 0
     if args.command == "train":
-        from ftgspp.bench.train import bench_train, format_train_table
+        from ftgspp.bench.train_speed import bench_train, format_train_table
 
         result = bench_train(iterations=args.iterations, budget=args.budget, repeats=args.repeats,
                              width=args.width, height=args.height, breakdown=args.breakdown,

@@ -14,7 +14,7 @@ import tempfile
 
 _COMPILE_SNIPPET = """
 import time, torch
-from ftgspp.bench.scene import project_scene, random_scene
+from ftgspp.bench.random_scene import project_scene, random_scene
 from ftgspp.bench.stages import stage_model
 from ftgspp.bench.timing import time_backend
 from ftgspp.metrics import ssim_same

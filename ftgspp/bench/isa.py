@@ -143,7 +143,7 @@ def kernel_registers() -> dict[str, int] | None:
     """Vector registers named in the assembly of the rasterizer's kernels (``render_forward``,
     ``render_backward``: the per-tile loops are inlined into them); None when this process
     loaded them from the cache (Numba keeps no assembly of cached code)."""
-    from ftgspp.bench.scene import project_scene, random_scene
+    from ftgspp.bench.random_scene import project_scene, random_scene
     from ftgspp.render import cpu_kernels
     from ftgspp.render.cpu import rasterize
 

@@ -17,7 +17,7 @@ import torch
 
 from ftgspp.bench.compile_probe import COMPILE_KEYS, numba_compile_seconds
 from ftgspp.bench.isa import describe, host_isa
-from ftgspp.bench.scene import project_scene, random_scene
+from ftgspp.bench.random_scene import project_scene, random_scene
 from ftgspp.bench.stages import time_stages
 from ftgspp.bench.timing import rasterizers, time_backend, time_yardstick
 

@@ -20,7 +20,7 @@ from typing import Any, Callable
 import torch
 
 from ftgspp.bench.phases import PhaseTimer
-from ftgspp.bench.train import bench_config, bench_scene
+from ftgspp.bench.train_speed import bench_config, bench_scene
 from ftgspp.config import DataConfig
 from ftgspp.data.load import load_scene
 

@@ -17,14 +17,14 @@ import time
 
 
 def _dispatchers() -> list:
-    from ftgspp import colour_fit, ssim_cpu
+    from ftgspp import colour_alignment, ssim_cpu
     from ftgspp.render import cpu_kernels, prepare_kernels
     from ftgspp.strategy import relocate
 
     return [cpu_kernels.bin_gaussians, cpu_kernels.render_forward, cpu_kernels.render_backward,
             cpu_kernels.reduce_pair_grads, prepare_kernels.prepare_forward, prepare_kernels.prepare_backward,
-            ssim_cpu.ssim_forward, ssim_cpu.ssim_backward, colour_fit.normal_equations, colour_fit.cholesky_solve,
-            colour_fit.apply_affine, relocate._add_visible]
+            ssim_cpu.ssim_forward, ssim_cpu.ssim_backward, colour_alignment.normal_equations, colour_alignment.cholesky_solve,
+            colour_alignment.apply_affine, relocate._add_visible]
 
 
 def kernels_cached() -> bool:
@@ -41,9 +41,9 @@ def warm_up() -> float:
     import numpy as np
     import torch
 
-    from ftgspp.bench.scene import random_scene
+    from ftgspp.bench.random_scene import random_scene
     from ftgspp.bench.stages import stage_model
-    from ftgspp.colour_fit import colour_aligned_np
+    from ftgspp.colour_alignment import colour_aligned_np
     from ftgspp.metrics import ssim_same
     from ftgspp.render import cpu
     from ftgspp.render.prepare import prepare

@@ -1,6 +1,6 @@
 """From tested claims to verdicts a referee would accept.
 
-``evaluate(df, claims)`` tests every claim of a study on its runs (``analysis.claims``): one
+``evaluate(df, claims)`` tests every claim of a study on its runs (``analysis.claim_tests``): one
 row per hypothesis (a claim, or one scene of a scene-dependent claim) with the raw p of the
 difference test and of the equivalence test, the heterogeneity p, the paper's numbers and
 the paper's own evidence. ``decide(frame)`` corrects the p-values over each named family
@@ -27,7 +27,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from harness.analysis import claims as C, stats
+from harness.analysis import claim_tests as C, stats
 from harness.spec.study import CLAIM_GROUPS, ClaimSpec
 
 REPRODUCED, CONTRADICTED, EQUIVALENT, INCONCLUSIVE = "reproduced", "contradicted", "equivalent", "inconclusive"

@@ -1,7 +1,7 @@
 """``study budget``: find the smallest Gaussian budget a scene needs, as a tracked study.
 
 Starting at ``start`` Gaussians, the budget doubles while doubling still gains at least
-``threshold`` dB of held-out PSNR (mean over ``seeds`` runs; ``analysis.budget.gain``), then
+``threshold`` dB of held-out PSNR (mean over ``seeds`` runs; ``analysis.budget_search.gain``), then
 bisects between the last budget that was not enough and the first that was, judging each
 against the largest budget tried. Every run is an ordinary study run (MLflow experiment
 ``ftgspp/budget_<scene>``, resumable, one variant ``b<N>`` per budget), so a second search on
@@ -20,8 +20,8 @@ from typing import Callable
 import numpy as np
 
 from ftgspp.errors import InputError
-from harness.analysis import budget as B
-from harness.analysis.budget import BudgetSearch
+from harness.analysis import budget_search as B
+from harness.analysis.budget_search import BudgetSearch
 from harness.run.runner import run_study
 from harness.spec.plan import plan_runs
 from harness.spec.runs import Selection, expand
@@ -56,7 +56,7 @@ def search(scene: StudyScene, *, start: int = 500, max_budget: int = 64_000, thr
            seeds: int = 3, overrides: list[str] | None = None, jobs: int = 1, metric: str = "psnr",
            echo: Callable[[str], None] = print, **run_kw: object) -> BudgetSearch:
     """Double, then bisect (module docstring); every budget is trained through ``run_study``.
-    ``metric``: the PSNR judged (``analysis.budget.METRICS``); the runs are the same for both."""
+    ``metric``: the PSNR judged (``analysis.budget_search.METRICS``); the runs are the same for both."""
     if metric not in B.METRICS:
         raise InputError("--metric", f"unknown '{metric}' (known: {', '.join(B.METRICS)})")
     name = f"budget_{scene.name}"

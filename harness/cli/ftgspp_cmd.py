@@ -34,7 +34,7 @@ def _dispatch(cmd: str, args: list[str]) -> int:
         sys.argv = [sys.argv[0], *args]  # Hydra's app reads the command line; "train" is consumed here
         return train_main(args)
     if cmd == "synth":
-        from ftgspp.data.synthetic import main as synth_main
+        from ftgspp.data.synthetic.generate import main as synth_main
 
         return synth_main(args)
     if cmd == "bench":
@@ -54,7 +54,7 @@ def _dispatch(cmd: str, args: list[str]) -> int:
 
         return check_gpu_main(args)
     if cmd == "diagnose":
-        from ftgspp.diagnostics import main as diagnose_main
+        from ftgspp.diagnostics.diagnose import main as diagnose_main
 
         return diagnose_main(args)
     print(f"error: unknown command '{cmd}'\n{USAGE}", file=sys.stderr)

@@ -184,7 +184,7 @@ def cmd_status(args: argparse.Namespace) -> int:
 def cmd_budget(args: argparse.Namespace) -> int:
     """``study budget``: search, then write and print the answer."""
     from harness.cli.budget import data_scene, search, synthetic_scene
-    from harness.report.budget import write
+    from harness.report.budget_page import write
 
     if args.start < 1 or args.max < args.start or args.seeds < 2 or args.threshold <= 0:
         raise InputError("study budget", "needs 1 <= --start <= --max, --seeds >= 2 and --threshold > 0")

@@ -23,7 +23,7 @@ import pandas as pd
 
 from harness.analysis import verdicts as V
 from harness.report import USER_REPORTS
-from harness.report.claims import VERDICT_MARK, VERDICT_RULES, effect_text, sesoi_text, verdict_text
+from harness.report.claims_table import VERDICT_MARK, VERDICT_RULES, effect_text, sesoi_text, verdict_text
 from harness.report.findings import write_findings
 from harness.report.fmt import p_text, text
 from harness.report.forest import forest_plot

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.analysis import aggregate, ladders, speed_accuracy, variance, verdicts
-from harness.report import claims as claims_report, ladders as ladders_report, plots, tables
+from harness.analysis import aggregate, ladder_breaks, speed_accuracy_scenes, variance, verdicts
+from harness.report import claims_table, ladder_figures, plots, tables
 from harness.report.fmt import fixed
 from harness.report.results import ReportData
 from harness.spec import metrics as registry
@@ -158,12 +158,12 @@ def claims_section(data: ReportData, out: Path) -> Section | None:
     frame = verdicts.decide(verdicts.evaluate(registry.add_differences(data.df), data.study.claims),
                             label=" (this study)")
     frame.to_csv(out / "claims.csv", index=False)
-    md = claims_report.claims_markdown(frame)
+    md = claims_table.claims_markdown(frame)
     for c in data.study.claims:
         if c.test == "decoupled":  # secret 2: the runs behind "clean RGB does not imply clean motion"
-            p = claims_report.decoupled_plot(data.df, c, out / f"claim_{c.id}.png")
+            p = claims_table.decoupled_plot(data.df, c, out / f"claim_{c.id}.png")
             md += f"\n\n![{c.id}: {c.versus} against {c.metric}, every run]({p.name})"
-    return Section("Claims", md, claims_report.claims_latex(frame, data.study.name))
+    return Section("Claims", md, claims_table.claims_latex(frame, data.study.name))
 
 
 def variance_section(data: ReportData, out: Path) -> Section | None:
@@ -192,9 +192,9 @@ def components_markdown(frame: pd.DataFrame) -> str:
 def ladders_section(data: ReportData, out: Path) -> Section | None:
     """Stability ladders when the profile's cells are rungs: ``ladders.csv`` and ``ladders.png``."""
     scenes = data.study.profile(data.sel.profile).scenes
-    if not ladders.has_ladders(scenes):
+    if not ladder_breaks.has_ladders(scenes):
         return None
-    md = ladders_report.write(data.df, scenes, out, f"{data.study.name}: where does each method break?")
+    md = ladder_figures.write(data.df, scenes, out, f"{data.study.name}: where does each method break?")
     return Section("Stability ladders", md)
 
 
@@ -210,8 +210,8 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
                                  out / f"strip_{m}.png")
             made.append((f"Per-run {tables.pretty(m)} per variant and scene", p))
     if "speed_accuracy" in data.study.plots and len(scenes) > 1:  # what each scene needs
-        sa = speed_accuracy.per_scene(data.df)
-        chosen_per_scene = speed_accuracy.smallest_per_scene(sa, data.df)
+        sa = speed_accuracy_scenes.per_scene(data.df)
+        chosen_per_scene = speed_accuracy_scenes.smallest_per_scene(sa, data.df)
         sa.to_csv(out / "speed_accuracy.csv", index=False)
         chosen_per_scene.to_csv(out / "speed_accuracy_smallest.csv", index=False)
         p = plots.speed_accuracy_scenes_plot(sa, chosen_per_scene, f"{name}: what does quality cost, per scene?",

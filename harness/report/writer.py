@@ -13,11 +13,11 @@ Written files:
 - ``runs.csv`` (one row per run) and ``summary.csv`` (mean, std, CI, t, p per cell);
 - ``index.md``: question, exact commands, config hashes, links to all of the above;
 - ``claims.csv`` and a "Claims" section in ``table.md``, ``table.tex`` and ``index.md``: each
-  claim of the study file with its verdict (``analysis.claims``, ``report.claims``);
+  claim of the study file with its verdict (``analysis.claim_tests``, ``report.claims_table``);
 - ``variance.csv`` and a "Sources of run-to-run spread" section when the study names
   ``variance_components``;
 - ``ladders.csv``, ``ladders.png`` and a "Stability ladders" section in ``table.md`` and
-  ``index.md`` when the profile's cells are rungs of difficulty ladders (``report.ladders``).
+  ``index.md`` when the profile's cells are rungs of difficulty ladders (``report.ladder_figures``).
 
 Each part comes from ``report.sections``; this module puts them together in a fixed order.
 """
@@ -33,7 +33,7 @@ import pandas as pd
 
 from ftgspp.errors import InputError
 from harness.analysis import aggregate
-from harness.report import USER_REPORTS, sections, speed_accuracy as speed_accuracy_report, tables
+from harness.report import USER_REPORTS, sections, speed_accuracy_text, tables
 from harness.report.results import ReportData, collect
 from harness.spec.runs import Selection, command_line
 from harness.tracking.provenance import trainer_fingerprint
@@ -88,11 +88,11 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
     if main.tables:
         lines += [f"### {main.tables[0].title}", "", tables.to_markdown(main.tables[0]), ""]
     if "speed_accuracy" in study.plots and df.scene.nunique() > 1:
-        lines += [speed_accuracy_report.report_markdown(df), "",
+        lines += [speed_accuracy_text.report_markdown(df), "",
                   "Per scene and variant: [speed_accuracy.csv](speed_accuracy.csv); the chosen budgets:"
                   " [speed_accuracy_smallest.csv](speed_accuracy_smallest.csv).", ""]
         if "psnr_cc" in df and df["psnr_cc"].notna().any():
-            lines += [speed_accuracy_report.colour_aligned_markdown(df), ""]
+            lines += [speed_accuracy_text.colour_aligned_markdown(df), ""]
     elif "speed_accuracy" in study.plots:
         sa = aggregate.speed_accuracy(df)
         chosen = aggregate.smallest_within(sa)

@@ -26,8 +26,8 @@ from typing import Any
 from harness.run.launchers import effective_launcher
 
 # what a job imports before its run starts (run.task and the trainer behind it)
-RUN_MODULES = ("harness.run.task", "harness.run.training", "ftgspp.trainer", "ftgspp.data.load", "ftgspp.diagnostics",
-               "ftgspp.evaluate", "mlflow")
+RUN_MODULES = ("harness.run.task", "harness.run.training", "ftgspp.trainer", "ftgspp.data.load",
+               "ftgspp.diagnostics.diagnose", "ftgspp.evaluate", "mlflow")
 
 
 def _warm_worker() -> int:

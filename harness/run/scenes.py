@@ -1,7 +1,7 @@
 """Synthetic study scenes, generated on demand into ``data/synth/<name>``.
 
 A scene with ``synth: {preset, seed, layout, ...}`` is written by
-``ftgspp.data.synthetic.generate(out, layout, preset, seed, **extra)`` the first time a
+``ftgspp.data.synthetic.generate.generate(out, layout, preset, seed, **extra)`` the first time a
 study needs it. A marker file records the arguments; a folder whose marker differs (the
 study file changed) is regenerated, one with the same marker is reused, and so is a folder
 without a marker that ``ftgspp synth`` wrote with the same arguments. Generation
@@ -32,7 +32,7 @@ def _generated_with(out: Path, args: dict[str, Any]) -> bool:
     if not meta_file.is_file():
         return False
     try:
-        from ftgspp.data.synthetic import resolve_config
+        from ftgspp.data.synthetic.presets import resolve_config
 
         meta = json.loads(meta_file.read_text())
         extra = {k: v for k, v in args.items() if k not in {"preset", "seed", "layout"}}
@@ -44,7 +44,7 @@ def _generated_with(out: Path, args: dict[str, Any]) -> bool:
 
 
 def _default_generator() -> Generator:
-    from ftgspp.data.synthetic import generate
+    from ftgspp.data.synthetic.generate import generate
 
     return generate
 

@@ -115,7 +115,7 @@ def _synth_value(field: str, value: float, where: str) -> int | float:
     """``value`` as the synthetic generator's ``field`` type (``SynthConfig``: int or float)."""
     import dataclasses
 
-    from ftgspp.data.synthetic import SynthConfig
+    from ftgspp.data.synthetic.presets import SynthConfig
 
     types = {f.name: f.type for f in dataclasses.fields(SynthConfig)}
     require(field in types, where, f"'{field}' is not a synthetic scene argument")

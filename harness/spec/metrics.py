@@ -132,7 +132,7 @@ for _m in (
     Metric("eval_lpips_seconds", "LPIPS (s)", 1, LOWER, claimable=False, deterministic=False),
     Metric("diagnostics_seconds", "diagnostics (s)", 1, LOWER, claimable=False, deterministic=False),
     Metric("n_gaussians", "#Gaussians", 0, LOWER),
-    # diagnostics (ftgspp.diagnostics via the trainer)
+    # diagnostics (ftgspp.diagnostics.diagnose via the trainer)
     Metric("lifetime_long_on_static"),
     Metric("lifetime_short_on_dynamic"),
     Metric("lifetime_median_fraction"),

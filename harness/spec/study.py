@@ -157,7 +157,7 @@ class PaperClaim:
 
 @dataclass(frozen=True)
 class ClaimSpec:
-    """One statement, as a test on the study's runs (``analysis.claims``).
+    """One statement, as a test on the study's runs (``analysis.claim_tests``).
 
     ``test``: ``mean`` (variant ``a`` against ``b``, or against zero when ``b`` is empty),
     ``variance`` (spread of ``a`` against ``b``), ``interaction`` (the ``a`` − ``b``

@@ -10,7 +10,7 @@ def validate_synth(scene: StudyScene) -> None:
     """Check a synthetic scene's generator arguments without rendering (InputError if bad)."""
     if scene.synth is None:
         return
-    from ftgspp.data.synthetic import SCENE_LAYOUTS, resolve_config
+    from ftgspp.data.synthetic.presets import SCENE_LAYOUTS, resolve_config
 
     args = dict(scene.synth)
     where = f"scene '{scene.name}' synth"

@@ -11,7 +11,7 @@ import types
 import pytest
 
 from ftgspp.bench import main
-from ftgspp.bench.train import format_train_table
+from ftgspp.bench.train_speed import format_train_table
 from ftgspp.errors import InputError
 
 

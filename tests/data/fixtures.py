@@ -257,7 +257,7 @@ def edge_frame(view: dict, point: Sequence[float], direction: Sequence[float], d
 def write_immersive(root: Path, frames: dict[str, list[np.ndarray]], views: Sequence[dict], fps: float = 30.0,
                     as_images: bool = False) -> Path:
     """An Immersive folder: ``models.json`` + ``<name>.mp4`` (lossless FFV1), or ``<name>/<i>.png``."""
-    from ftgspp.data.synthetic import write_video as write_lossless
+    from ftgspp.data.synthetic.formats import write_video as write_lossless
 
     root.mkdir(parents=True, exist_ok=True)
     (root / "models.json").write_text(json.dumps(list(views), indent=1))

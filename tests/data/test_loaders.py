@@ -20,7 +20,7 @@ from ftgspp.config import DataConfig
 from ftgspp.data.dynerf import cameras_from_poses_bounds
 from ftgspp.data.load import detect_format, load_scene
 from ftgspp.data.source import match_camera
-from ftgspp.data.synthetic import poses_bounds_row
+from ftgspp.data.synthetic.formats import poses_bounds_row
 from ftgspp.errors import InputError
 
 try:  # tests/ importable as a package

@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 import pytest
 
-from ftgspp.data.synthetic import generate, main
-from ftgspp.data.synthetic_pool import map_in_processes
+from ftgspp.data.synthetic.generate import generate, main
+from ftgspp.data.synthetic.pool import map_in_processes
 from ftgspp.errors import InputError
 
 SMALL = dict(n_cameras=4, n_frames=6, width=96, height=72)

@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from ftgspp.data.synthetic import PRESETS, generate, main, resolve_config
+from ftgspp.data.synthetic.generate import generate, main
+from ftgspp.data.synthetic.presets import PRESETS, resolve_config
 
 SMALL = dict(layout="easyvolcap", n_cameras=3, width=80, height=60)
 

@@ -9,9 +9,9 @@ import pytest
 from fakes import fake_generate, fake_train
 
 from ftgspp.errors import InputError
-from harness.analysis.budget import gain, midpoint, sufficient
+from harness.analysis.budget_search import gain, midpoint, sufficient
 from harness.cli.budget import search, synthetic_scene
-from harness.report.budget import write
+from harness.report.budget_page import write
 
 
 def saturating(cfg, out_dir, tracker):

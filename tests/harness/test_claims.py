@@ -16,7 +16,7 @@ import yaml
 from scipy import stats
 
 from ftgspp.errors import InputError
-from harness.analysis import claims as C, stats as S, verdicts as V
+from harness.analysis import claim_tests as C, stats as S, verdicts as V
 from harness.spec.files import load_study
 from harness.spec.study import ClaimSpec, PaperClaim, PaperRow
 

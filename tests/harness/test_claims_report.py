@@ -12,7 +12,7 @@ import yaml
 from fakes import fake_generate, fake_train
 
 from harness.analysis import verdicts as V
-from harness.report.claims import claims_latex, claims_markdown
+from harness.report.claims_table import claims_latex, claims_markdown
 from harness.report.index import StudyClaims, decide_all, index_markdown
 from harness.spec.study import ClaimSpec, PaperClaim, PaperRow
 

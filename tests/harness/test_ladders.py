@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from harness.analysis import ladders
-from harness.report import ladders as ladders_report, sections
+from harness.analysis import ladder_breaks
+from harness.report import ladder_figures, sections
 from harness.report.results import ReportData
 from harness.spec.files import parse_study
 from harness.spec.runs import Selection
@@ -62,13 +62,13 @@ def _frame(runs: dict[tuple[str, str], list]) -> pd.DataFrame:
 
 @pytest.fixture(scope="module")
 def table() -> pd.DataFrame:
-    return ladders.ladder_table(_frame(RUNS), SCENES).set_index(["ladder", "scene", "variant"])
+    return ladder_breaks.ladder_table(_frame(RUNS), SCENES).set_index(["ladder", "scene", "variant"])
 
 
 def test_rungs_run_from_the_shared_base_in_either_direction() -> None:
-    order = {lad.name: [r.value for r in lad.rungs] for lad in ladders.ladders_of(SCENES)}
+    order = {lad.name: [r.value for r in lad.rungs] for lad in ladder_breaks.ladders_of(SCENES)}
     assert order == {"lr_scale": [1.0, 3.0, 10.0, 30.0], "cameras": [10.0, 6.0, 4.0, 3.0]}
-    assert [lad.descending for lad in ladders.ladders_of(SCENES)] == [False, True]
+    assert [lad.descending for lad in ladder_breaks.ladders_of(SCENES)] == [False, True]
 
 
 def test_a_planted_collapse_counts_as_collapsed_not_ok(table: pd.DataFrame) -> None:
@@ -94,7 +94,7 @@ def test_divergence_and_crash_are_counted_separately(table: pd.DataFrame) -> Non
 
 def test_base_cell_runs_are_never_collapsed() -> None:
     runs = {("ftgspp", "base"): [31.0, 23.0], ("ftgspp", "lr3"): [26.5, 23.5]}  # reference 27.0
-    t = ladders.ladder_table(_frame(runs), SCENES).set_index(["ladder", "scene", "variant"])
+    t = ladder_breaks.ladder_table(_frame(runs), SCENES).set_index(["ladder", "scene", "variant"])
     for lad in ("lr_scale", "cameras"):
         base = t.loc[(lad, "base", "ftgspp")]
         assert (base.n_ok, base.n_collapsed) == (2, 0)
@@ -103,7 +103,7 @@ def test_base_cell_runs_are_never_collapsed() -> None:
 
 
 def test_first_breaking_rung_for_climbing_and_descending_ladders() -> None:
-    breaks = ladders.first_breaks(ladders.ladder_table(_frame(RUNS), SCENES)).set_index(["ladder", "variant"])
+    breaks = ladder_breaks.first_breaks(ladder_breaks.ladder_table(_frame(RUNS), SCENES)).set_index(["ladder", "variant"])
     assert breaks.loc[("lr_scale", "baseline")].first_break == 10.0  # collapse at 10 before the failures at 30
     assert breaks.loc[("cameras", "ftgspp")].first_break == 4.0  # 10 -> 6 -> 4: the crash at 4 comes first
     assert breaks.loc[("cameras", "ftgspp")].text == "cameras 4 (4 cameras)"
@@ -121,17 +121,17 @@ def test_component_variant_only_where_it_ran_judged_against_the_method_it_extend
     comp = table.xs("ftgspp_no_gate", level="variant")
     assert list(comp.index) == [("lr_scale", "lr30")]
     r = comp.iloc[0]
-    assert r.role == ladders.COMPONENT and r.reference_psnr == pytest.approx(31.1)
+    assert r.role == ladder_breaks.COMPONENT and r.reference_psnr == pytest.approx(31.1)
     assert (r.n_ok, r.n_collapsed, r.n_diverged) == (0, 1, 1)
     odd = table.loc[("lr_scale", "lr30", "gate_only")]
     assert math.isnan(odd.reference_psnr) and (odd.n_ok, odd.n_collapsed) == (1, 0)  # 24 dB not judged
-    assert table.loc[("lr_scale", "lr30", "ftgspp")].role == ladders.METHOD
+    assert table.loc[("lr_scale", "lr30", "ftgspp")].role == ladder_breaks.METHOD
 
 
 def test_markdown_states_the_rule_the_cells_and_the_breaks() -> None:
-    t = ladders.ladder_table(_frame(RUNS), SCENES)
-    md = ladders_report.ladders_markdown(t, ladders.first_breaks(t))
-    assert ladders.COLLAPSE_RULE in md
+    t = ladder_breaks.ladder_table(_frame(RUNS), SCENES)
+    md = ladder_figures.ladders_markdown(t, ladder_breaks.first_breaks(t))
+    assert ladder_breaks.COLLAPSE_RULE in md
     assert "| 30 | lr x30 | — ± — (fail 2/2: 1/1/0) | 29.75 ± 0.35 (fail 0/2: 0/0/0) |" in md
     assert "`baseline` lr_scale 10 (lr x10); `ftgspp` none up to lr_scale 30." in md
     assert "| `ftgspp_no_gate` | component | 24.00 ± — | 0 / 2 | 0 | 1 | 1 |" in md
@@ -140,7 +140,7 @@ def test_markdown_states_the_rule_the_cells_and_the_breaks() -> None:
 
 
 def test_write_makes_csv_plot_and_section(tmp_path: Path) -> None:
-    md = ladders_report.write(_frame(RUNS), SCENES, tmp_path, "toy ladders")
+    md = ladder_figures.write(_frame(RUNS), SCENES, tmp_path, "toy ladders")
     assert (tmp_path / "ladders.png").stat().st_size > 0
     assert len(pd.read_csv(tmp_path / "ladders.csv")) == 2 * 4 * 2 + 2
     assert "![PSNR and failure rate along each ladder](ladders.png)" in md
@@ -148,8 +148,8 @@ def test_write_makes_csv_plot_and_section(tmp_path: Path) -> None:
 
 def test_studies_without_rungs_have_no_ladders() -> None:
     plain = (StudyScene("easy"), StudyScene("hard"))
-    assert not ladders.has_ladders(plain)
-    assert ladders.ladder_table(_frame(RUNS), plain).empty
+    assert not ladder_breaks.has_ladders(plain)
+    assert ladder_breaks.ladder_table(_frame(RUNS), plain).empty
 
 
 def test_report_adds_the_section_only_when_cells_are_rungs(tmp_path: Path) -> None:

@@ -17,9 +17,9 @@ import pytest
 from scipy import stats
 
 from harness.analysis import aggregate
-from harness.analysis.speed_accuracy import per_scene, smallest_per_scene
+from harness.analysis.speed_accuracy_scenes import per_scene, smallest_per_scene
 from harness.report import plots
-from harness.report.speed_accuracy import markdown, pair_sentences, report_markdown
+from harness.report.speed_accuracy_text import markdown, pair_sentences, report_markdown
 
 LABELS = {"static": "Static", "studio": "Studio", "fast": "Fast motion"}
 # (scene, variant) -> PSNR per seed, None = a failed run; absent pairs were never planned.
@@ -220,7 +220,7 @@ def test_the_page_repeats_the_search_on_colour_aligned_psnr(tmp_path: Path) -> N
     colour-aligned PSNR still gains: planted so, the two sections choose different budgets."""
     from harness.report.results import ReportData
     from harness.report.sections import TablesSection
-    from harness.report.speed_accuracy import colour_aligned_markdown
+    from harness.report.speed_accuracy_text import colour_aligned_markdown
     from harness.report.writer import study_page
     from harness.spec.runs import Selection
 

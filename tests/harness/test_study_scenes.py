@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from ftgspp.data.synthetic import resolve_config
+from ftgspp.data.synthetic.presets import resolve_config
 from ftgspp.errors import InputError
 from harness.run.scenes import MARKER, ensure_scene
 from harness.spec.study import StudyScene

@@ -78,7 +78,7 @@ def test_too_many_gaussians_on_one_tile_is_an_error(monkeypatch: pytest.MonkeyPa
 
 _COMPILE_OR_LOAD = """
 import hashlib, json, torch
-from ftgspp.bench.scene import project_scene, random_scene
+from ftgspp.bench.random_scene import project_scene, random_scene
 from ftgspp.render import cpu
 from ftgspp.render import cpu_kernels as k
 inputs = project_scene(random_scene(300, 64, 48, seed=5))

@@ -99,7 +99,7 @@ def test_culled_gaussians_come_back_finite(gsplat) -> None:
 
 def test_bench_adapter_matches_reference(gsplat) -> None:
     """``ftgspp bench render``'s gsplat rasterizer on the bench's own projected scene."""
-    from ftgspp.bench.scene import project_scene, random_scene
+    from ftgspp.bench.random_scene import project_scene, random_scene
 
     inputs = project_scene(random_scene(300, 80, 56))
     names = ("means2d", "conics", "colors", "opacities", "depths")

@@ -2,7 +2,7 @@
 
 ``cast_static`` finds the nearest static surface of every ray of a grid and shades it;
 ``cast_objects`` composites the moving spheres at one time over that background, with
-their labels and scene flow. Ray grids come from ``synthetic_rig.pixel_rays`` (unit
+their labels and scene flow. Ray grids come from ``rig.pixel_rays`` (unit
 camera-z directions, so the hit parameter is the camera z-depth).
 """
 
@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ftgspp.data.scene import Camera
-from ftgspp.data.synthetic_geometry import SceneContent
-from ftgspp.data.synthetic_textures import shade
+from ftgspp.data.synthetic.geometry import SceneContent
+from ftgspp.data.synthetic.textures import shade
 
 
 @dataclass

@@ -6,7 +6,7 @@ room). Units are arbitrary "metres"; time is in seconds.
 A scene (``SceneContent``) is a closed room of textured planes (``Quad``) and boxes
 (``Box``) that looks out onto a far textured backdrop, and moving textured spheres
 (``MovingSphere``) on a straight (``LinearPath``) or circular (``ArcPath``) path. Each
-surface intersects rays and shades its own points; ``synthetic_raycast`` composes them.
+surface intersects rays and shades its own points; ``raycast`` composes them.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ftgspp.data.synthetic_textures import Texture, shade
+from ftgspp.data.synthetic.textures import Texture, shade
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Render a synthetic scene's cameras side by side, in lean worker processes.
 
 ``map_in_processes(fn, tasks, workers)`` is ``[fn(*t) for t in tasks]`` with the tasks dealt
-round-robin to ``workers`` child interpreters started as ``python -m ftgspp.data.synthetic_pool
+round-robin to ``workers`` child interpreters started as ``python -m ftgspp.data.synthetic.pool
 IN OUT``. A child imports only what ``fn`` needs: a ``multiprocessing`` spawn child would import
 the parent's main module first (for ``study run``: torch, Hydra and MLflow, about 2 s each,
 more than a small scene takes to render). ``fn`` must be a module-level function of an

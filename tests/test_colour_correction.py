@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from ftgspp.color import ColorCorrection
+from ftgspp.colour_correction import ColorCorrection
 
 
 def test_identity_at_start():

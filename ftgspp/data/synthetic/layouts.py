@@ -3,7 +3,7 @@
     ftgspp synth --out data/synth_immersive --layout immersive          # fisheye + models.json
     ftgspp synth --out data/synth_outdoor --layout enerf_outdoor        # EasyVolcap + distortion
 
-Each camera of the rig (``synthetic_rig``) gets a lens; RGB frames are ray-cast through it
+Each camera of the rig (``rig``) gets a lens; RGB frames are ray-cast through it
 (every (sub)pixel's ray comes from the OpenCV lens model: ``cv2.fisheye.undistortPoints`` or
 ``cv2.undistortPoints``), so loading a scene really undistorts. The lens is chosen so that the
 loader's undistorted camera *is* the rig's pinhole camera; ground truth (``gt/``) is rendered

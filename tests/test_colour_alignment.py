@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from ftgspp.colour_fit import cholesky_solve, colour_aligned_np
+from ftgspp.colour_alignment import cholesky_solve, colour_aligned_np
 from ftgspp.metrics import METRICS
 
 

@@ -1,5 +1,5 @@
 """Speed against accuracy per scene in a report: the smallest-budget table and one sentence
-per pair of scenes (numbers from ``analysis.speed_accuracy``)."""
+per pair of scenes (numbers from ``analysis.speed_accuracy_scenes``)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from itertools import combinations
 
 import pandas as pd
 
-from harness.analysis.speed_accuracy import per_scene, smallest_per_scene
+from harness.analysis.speed_accuracy_scenes import per_scene, smallest_per_scene
 from harness.spec.metrics import label
 
 

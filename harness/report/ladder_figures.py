@@ -1,6 +1,6 @@
 """The stability ladders in a report: Markdown section, ``ladders.png`` and ``ladders.csv``.
 
-The numbers come from ``analysis.ladders`` (``ladder_table``, ``first_breaks``,
+The numbers come from ``analysis.ladder_breaks`` (``ladder_table``, ``first_breaks``,
 ``classify_all``); ``write`` makes every file ``study report`` shows for them.
 """
 
@@ -16,7 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from harness.analysis.ladders import (  # noqa: E402
+from harness.analysis.ladder_breaks import (  # noqa: E402
     COLLAPSE_DB,
     COLLAPSE_RULE,
     COLLAPSED,

@@ -9,7 +9,7 @@ scene may be far too small for fast motion, so a study with several scenes asks 
 - ``smallest_per_scene``: per scene, the smallest budget whose mean is within ``tol_db`` of
   the scene's best (``aggregate.smallest_within``), and the gap to the best with a 95% Welch
   t-interval, which says whether "within 0.1 dB" is statistically settled;
-The report's table and its sentences are ``report.speed_accuracy``.
+The report's table and its sentences are ``report.speed_accuracy_text``.
 
 A scene may run a subset of the variants (``StudyScene.variants``) with its own seed count:
 a variant with no runs on a scene is absent from that scene's rows. ``study report

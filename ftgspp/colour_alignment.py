@@ -11,7 +11,7 @@ the same bits on any machine and at any thread count. The fitted values are thos
 squares (tested against ``numpy.linalg.lstsq``). A render or ground truth with NaN or infinity
 gives NaN.
 
-    from ftgspp.colour_fit import colour_aligned_np
+    from ftgspp.colour_alignment import colour_aligned_np
     aligned = colour_aligned_np(pred, gt)   # [P, 3] float64 each -> [P, 3], clamped to [0, 1]
 """
 

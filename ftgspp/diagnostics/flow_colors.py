@@ -1,6 +1,6 @@
 """Colour coding of flow fields for the diagnostics (no plotting, no model code).
 
-Used by ``ftgspp.diagnostics_plots`` (and the tests); it imports no other diagnostics
+Used by ``ftgspp.diagnostics.figures`` (and the tests); it imports no other diagnostics
 module.
 """
 

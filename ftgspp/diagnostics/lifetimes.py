@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from ftgspp.data.scene import Camera, Scene
-from ftgspp.diagnostics_motion import GroundTruth
+from ftgspp.diagnostics.motion import GroundTruth
 from ftgspp.model import FreeTimeGaussians
 from ftgspp.view import render_view
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from harness.analysis.budget import METRICS, BudgetSearch
+from harness.analysis.budget_search import METRICS, BudgetSearch
 from harness.report.plots import save_figure
 from harness.spec.metrics import label
 

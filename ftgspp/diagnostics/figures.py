@@ -1,4 +1,4 @@
-"""Matplotlib figures for ``ftgspp.diagnostics`` (one function per PNG, Agg backend).
+"""Matplotlib figures for ``ftgspp.diagnostics.diagnose`` (one function per PNG, Agg backend).
 
 Every figure has a title, labelled axes and a colour bar or legend where colours carry a
 value. Each function writes ``path`` and returns it.
@@ -16,7 +16,7 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from ftgspp.diagnostics_colors import color_wheel, flow_to_rgb  # noqa: E402
+from ftgspp.diagnostics.flow_colors import color_wheel, flow_to_rgb  # noqa: E402
 
 DPI = 120
 

@@ -26,7 +26,7 @@ Every run on a ladder gets one outcome:
 The failure rate of a rung is (crashed + diverged + collapsed) / attempted. Variants that run
 on every cell of a ladder (``StudyScene.variants``) are its ``method``\\ s; the others
 (component ablations such as ``ftgspp_no_gate`` run on a few cells) are ``component`` rows,
-tabulated per cell next to the methods. ``report.ladders`` turns ``ladder_table`` into what
+tabulated per cell next to the methods. ``report.ladder_figures`` turns ``ladder_table`` into what
 ``study report`` shows (``ladders.csv``, ``ladders.png`` and a Markdown section).
 """
 
