@@ -38,6 +38,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from harness.spec.metrics import phases  # noqa: E402
+
 STUDY = """name: rph
 question: How many quick runs an hour does this machine make?
 baseline: baseline
@@ -63,7 +65,7 @@ profiles:
 """
 
 
-PHASES = ("init_seconds", "train_seconds", "eval_seconds", "eval_lpips_seconds", "diagnostics_seconds")
+PHASES = phases()  # the trainer's phase timings in the order they run (the metric registry)
 
 
 def summarise(wall_s: float, runs: list[dict], study_start: float, jobs: int = 2) -> dict:

@@ -1,7 +1,7 @@
 """Evaluation on the held-out cameras over every loaded frame.
 
 Each frame is rendered without colour correction, scored with the metrics of
-``ftgspp.metrics`` and the per-frame scores are averaged, as the papers do. Two passes:
+``ftgspp.image_metrics`` and the per-frame scores are averaged, as the papers do. Two passes:
 ``evaluate`` (PSNR, SSIM at data range 1 and 2, DSSIM, saved renders) and then
 ``evaluate_lpips`` (LPIPS when its weights are present), so the trainer can save the
 network-free numbers before an optional network metric runs.
@@ -25,8 +25,8 @@ import torch
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
 from ftgspp.errors import InputError
+from ftgspp.image_metrics import METRICS, available_metrics, evaluate_images
 from ftgspp.lpips.nets import NETS
-from ftgspp.metrics import METRICS, available_metrics, evaluate_images
 from ftgspp.model import FreeTimeGaussians
 from ftgspp.view import render_view
 
@@ -154,7 +154,7 @@ def evaluate_lpips(model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig,
 
     ``{"lpips_missing": 1.0}`` when the weights are missing (the run records that it was
     scored without LPIPS, so a later run with the weights fills it in); a metric whose network
-    cannot take images this small is NaN with a one-line warning (``ftgspp.metrics.LPIPS_MIN_SIDE``).
+    cannot take images this small is NaN with a one-line warning (``ftgspp.image_metrics.LPIPS_MIN_SIDE``).
     """
     if not cfg.eval_lpips:
         return {}

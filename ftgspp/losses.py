@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ftgspp.metrics import ssim_same
+from ftgspp.image_metrics import ssim_same
 
 
 def photometric(pred: torch.Tensor, gt: torch.Tensor, ssim_weight: float) -> tuple[torch.Tensor, torch.Tensor]:

@@ -1,7 +1,7 @@
 """The tracker protocol the trainer logs through, and its null object.
 
 ``ftgspp`` never imports mlflow: the harness passes an object with these methods
-(``harness/tracking.py`` wraps an ``MlflowClient``). Without one, ``NullTracker`` swallows
+(``harness/tracking/mlflow_tracker.py`` wraps an ``MlflowClient``). Without one, ``NullTracker`` swallows
 everything, so the trainer has no ``if tracking:`` branches.
 """
 

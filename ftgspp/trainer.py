@@ -34,8 +34,8 @@ from ftgspp.data.scene import Scene
 from ftgspp.diagnostics.diagnose import run_diagnostics
 from ftgspp.errors import InputError
 from ftgspp.evaluate import HeldOutRenders, check_eval_lpips, evaluate, evaluate_lpips
+from ftgspp.image_metrics import lpips_distance
 from ftgspp.losses import gate_penalty, logged_photometric, opacity_4d, photometric, scale_penalty
-from ftgspp.metrics import lpips_distance
 from ftgspp.model import FreeTimeGaussians, GaussiansAt
 from ftgspp.optim import adam_step, clear_grads, plain_fused_adam
 from ftgspp.render import BACKENDS

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from ftgspp.colour_alignment import cholesky_solve, colour_aligned_np
-from ftgspp.metrics import METRICS
+from ftgspp.image_metrics import METRICS
 
 
 def _oracle(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:

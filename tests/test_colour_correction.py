@@ -53,7 +53,7 @@ def test_the_mean_identity_gauge_pins_the_mean_transform_and_keeps_per_camera_di
 
 
 def test_colour_aligned_psnr_forgives_a_global_colour_transform_only():
-    from ftgspp.metrics import METRICS, colour_aligned, psnr
+    from ftgspp.image_metrics import METRICS, colour_aligned, psnr
 
     g = torch.rand(1, 16, 16, 3, dtype=torch.float64)
     shifted = (g @ torch.tensor([[0.9, 0.05, 0.0], [0.0, 0.8, 0.1], [0.05, 0.0, 0.95]], dtype=torch.float64) + 0.03)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 
+from ftgspp.image_metrics import evaluate_images, lpips_distance, read_image
 from ftgspp.lpips import (
     LPIPS,
     WEIGHT_FILES,
@@ -27,7 +28,6 @@ from ftgspp.lpips import (
     weights as weights_mod,
 )
 from ftgspp.lpips.weights import flax_to_torch, safe_load_numpy_pickle
-from ftgspp.metrics import evaluate_images, lpips_distance, read_image
 
 LPIPS_REF_DIR = Path(__file__).resolve().parent / "assets" / "lpips_ref"  # images, provenance, licence
 

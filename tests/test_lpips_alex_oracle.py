@@ -14,8 +14,8 @@ import pytest
 from numpy.lib.stride_tricks import sliding_window_view
 from test_lpips import LPIPS_REF_DIR
 
+from ftgspp.image_metrics import lpips_distance, read_image
 from ftgspp.lpips.nets import LPIPS_SCALE, LPIPS_SHIFT
-from ftgspp.metrics import lpips_distance, read_image
 
 # (stride, padding, max-pool 3/2 before this conv) of AlexNet's five convolutions
 ALEX_LAYERS = ((4, 2, False), (1, 2, True), (1, 1, True), (1, 1, False), (1, 1, False))
@@ -72,7 +72,7 @@ def test_lpips_min_side_is_what_the_network_can_take(lpips_models, net):
     (which is why evaluation reports NaN there instead of calling it)."""
     import torch
 
-    from ftgspp.metrics import LPIPS_MIN_SIDE
+    from ftgspp.image_metrics import LPIPS_MIN_SIDE
 
     side = LPIPS_MIN_SIDE[net]
     model = lpips_models[net]

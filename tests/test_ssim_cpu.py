@@ -1,7 +1,7 @@
 """The Numba training-loss SSIM (``ftgspp.ssim_cpu``) against PyTorch autograd and scipy.
 
 Oracles: the grouped-convolution SSIM of ``metrics`` evaluated and differentiated in float64
-by PyTorch autograd, and scipy's zero-padded Gaussian filter (in test_metrics.py).
+by PyTorch autograd, and scipy's zero-padded Gaussian filter (in test_image_metrics.py).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from ftgspp.metrics import SSIM_WINDOW, _nchw, _ssim_map, ssim_same
+from ftgspp.image_metrics import SSIM_WINDOW, _nchw, _ssim_map, ssim_same
 from ftgspp.ssim_cpu import RADIUS
 from tests.numba_threads import under_thread_counts
 
@@ -96,7 +96,7 @@ def _awkward(shape: tuple[int, ...], seed: int) -> np.ndarray:
 def test_filters_add_the_taps_bit_for_bit_as_one_pass_per_tap(width: int, n_ch: int) -> None:
     """The register-summed filters give the bits of adding one tap at a time (the earlier kernels'
     order), the padding's zeros included, on signed values with -0.0, NaN and infinities."""
-    from ftgspp.metrics import _gaussian_1d
+    from ftgspp.image_metrics import _gaussian_1d
     from ftgspp.ssim_cpu import _filter_column, _filter_row, _padded
 
     taps = _gaussian_1d(SSIM_WINDOW, 1.5, torch.float32, "cpu").numpy()

@@ -25,7 +25,7 @@ from ftgspp.data.load import load_scene
 from ftgspp.data.synthetic.generate import generate
 from ftgspp.errors import InputError
 from ftgspp.evaluate import evaluate
-from ftgspp.metrics import lpips_distance, ssim_same
+from ftgspp.image_metrics import lpips_distance, ssim_same
 from ftgspp.model import FreeTimeGaussians
 from ftgspp.train_state import make_optimizer, scene_extent, set_learning_rates
 from ftgspp.trainer import loss_terms, sh_degree_at, train
@@ -82,7 +82,7 @@ def test_images_too_small_for_lpips_give_nan_and_a_warning_not_a_crash(tmp_path,
     cfg.data.downsample = 2
     scene = load_scene(DataConfig(path=str(scene_dir), downsample=2))
     assert scene.cameras[0].width == 32 and scene.cameras[0].height == 24
-    with caplog.at_level(logging.WARNING, logger="ftgspp.metrics"):
+    with caplog.at_level(logging.WARNING, logger="ftgspp.image_metrics"):
         result = train(cfg, scene)
     assert result.status == "FINISHED"
     saved = json.loads((tmp_path / "run" / "metrics.json").read_text())

@@ -17,7 +17,7 @@ import time, torch
 from ftgspp.bench.random_scene import project_scene, random_scene
 from ftgspp.bench.stages import stage_model
 from ftgspp.bench.timing import time_backend
-from ftgspp.metrics import ssim_same
+from ftgspp.image_metrics import ssim_same
 from ftgspp.render import cpu
 from ftgspp.render.prepare import prepare
 m = torch.tensor([[8.0, 8.0], [20.0, 9.0]], requires_grad=True)

@@ -50,7 +50,7 @@ def time_stages(scene: dict[str, Any], repeats: int, seed: int = 0) -> dict[str,
     (``at_time``, ``eval_sh``, ``project``: the ``reference`` path) and as the fused Numba node.
     ``ssim_loss``: 1 - SSIM of a rendered-size image, grouped ``conv2d`` vs the Numba kernels.
     """
-    from ftgspp.metrics import SSIM_WINDOW, _nchw, _ssim_map, ssim_same
+    from ftgspp.image_metrics import SSIM_WINDOW, _nchw, _ssim_map, ssim_same
     from ftgspp.render.prepare import prepare
     from ftgspp.render.project import project
     from ftgspp.render.sh import eval_sh

@@ -44,7 +44,7 @@ def warm_up() -> float:
     from ftgspp.bench.random_scene import random_scene
     from ftgspp.bench.stages import stage_model
     from ftgspp.colour_alignment import colour_aligned_np
-    from ftgspp.metrics import ssim_same
+    from ftgspp.image_metrics import ssim_same
     from ftgspp.render import cpu
     from ftgspp.render.prepare import prepare
     from ftgspp.strategy import relocate

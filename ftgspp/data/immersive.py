@@ -55,8 +55,6 @@ from ftgspp.errors import InputError
 
 MODELS_FILE = "models.json"
 FOCAL_SCALE = 0.5  # SpacetimeGaussians' "_undist" scenes
-TEST_CAMERA = "camera_0001"
-SEGMENT_FRAMES = 50
 REQUIRED = ("name", "width", "height", "focal_length", "principal_point", "radial_distortion",
             "orientation", "position")
 PROJECTIONS = ("fisheye",)

@@ -156,7 +156,7 @@ def run_diagnostics(
     same numbers and writes only ``diagnostics.json`` (drawing is most of the time).
     ``renders``: evaluation's renders (``HeldOutRenders``), reused where they are the same views.
     """
-    from ftgspp.diagnostics import figures
+    from ftgspp.diagnostics import figures as plots  # the parameter `figures` is the switch
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -196,7 +196,7 @@ def run_diagnostics(
         "n_persistent": int(np.isinf(frac).sum()),
         "median_fraction": float(np.median(frac)) if len(frac) else float("nan"),
     }
-    draw("lifetime_histogram", figures.plot_lifetime_histogram,
+    draw("lifetime_histogram", plots.plot_lifetime_histogram,
          counts, edges, frac, split, theta, scene.duration, out / "lifetime_histogram.png")
 
     # group renders (a figure only)
@@ -207,14 +207,14 @@ def run_diagnostics(
         for name, keep in groups.items():
             sub = subset_model(model, keep)
             group_images[f"{name}: {int(keep.sum())}"] = render_frames(sub, cam, np.array([t]), sh, bg, backend)[0]
-        files["lifetime_groups"] = figures.plot_group_renders(scene.image(cam_i, frame), group_images, where,
+        files["lifetime_groups"] = plots.plot_group_renders(scene.image(cam_i, frame), group_images, where,
                                                             out / "lifetime_groups.png")
 
     # velocity map
     flow, alpha = velocity_map(model, cam, t, scene.fps, backend)
     if figures:
         rgb = frames_at([frame])[0]
-        files["velocity_map"] = figures.plot_velocity_map(rgb, flow, alpha > ALPHA_MIN, where, out / "velocity_map.png")
+        files["velocity_map"] = plots.plot_velocity_map(rgb, flow, alpha > ALPHA_MIN, where, out / "velocity_map.png")
     speed = np.linalg.norm(flow, axis=-1)[alpha > ALPHA_MIN]
     velocity = {"mean": float(speed.mean()) if speed.size else 0.0,
                 "p99": float(np.percentile(speed, 99)) if speed.size else 0.0}
@@ -223,7 +223,7 @@ def run_diagnostics(
     gt_xt = xt_slice(scene.frames(cam_i), row).astype(np.float32) / 255.0
     all_frames = frames_at(list(range(scene.n_frames)))  # [F, H, W, 3]
     render_xt = xt_slice(all_frames, row)
-    draw("xt_slice", figures.plot_xt_slice, gt_xt, render_xt, cam.name, row, scene.fps, out / "xt_slice.png")
+    draw("xt_slice", plots.plot_xt_slice, gt_xt, render_xt, cam.name, row, scene.fps, out / "xt_slice.png")
     result = DiagnosticsResult(camera=cam.name, frame=frame, theta=theta, split=split, row=row, lifetime=lifetime,
                                velocity_px_per_frame=velocity, xt_slice_mae=float(np.abs(gt_xt - render_xt).mean()),
                                files=files)  # fmt: skip
@@ -234,7 +234,7 @@ def run_diagnostics(
         motion, maps = scene_motion_error(model, scene, cam_i, gt, backend=backend)
         result.motion = motion
         v, a = maps[frame]
-        draw("motion_error", figures.plot_motion_error,
+        draw("motion_error", plots.plot_motion_error,
              v, a > ALPHA_MIN, gt.flow3d[frame], gt.objects[frame], motion, where, out / "motion_error.png")
         gts = {cam_i: gt}
         for c in scene.train_ids:

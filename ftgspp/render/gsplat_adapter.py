@@ -24,8 +24,6 @@ import torch
 
 from ftgspp.render.contract import EPS2D, FAR_PLANE, PIXEL_OFFSET, TILE_SIZE, RenderOutput
 
-GSPLAT_VERSION = "1.5.3"  # the version whose conventions contract.py states
-
 
 def _gsplat() -> ModuleType:
     """The ``gsplat`` module; a RuntimeError naming the backend if it cannot be imported."""

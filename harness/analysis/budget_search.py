@@ -1,6 +1,6 @@
 """The smallest Gaussian budget a scene needs: the decisions of the budget search.
 
-``run.budget`` doubles the budget until doubling gains less than ``threshold`` dB, then
+``cli.budget`` doubles the budget until doubling gains less than ``threshold`` dB, then
 bisects between the last insufficient and the first sufficient budget. The decisions are
 pure functions of the runs' PSNRs per budget:
 
@@ -9,7 +9,8 @@ pure functions of the runs' PSNRs per budget:
   best budget tried (point estimate; the interval says whether that is settled).
 
 The PSNR is the search's ``metric``: raw held-out PSNR (``psnr``) or the colour-aligned one
-(``psnr_cc``), which leaves out the held-out camera's colour that no model budget can learn.
+(``psnr_cc``), which leaves out the held-out camera's colour that no model budget can learn
+(the registry's ``budget_metrics``: the held-out metrics in dB).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
+
+from harness.spec.metrics import budget_metrics, phrase
 
 
 @dataclass(frozen=True)
@@ -54,7 +57,7 @@ def midpoint(low: int, high: int, step: int = 100) -> int:
     return int(round((low + high) / 2 / step) * step)
 
 
-METRICS = {"psnr": "held-out PSNR", "psnr_cc": "colour-aligned held-out PSNR"}  # what a search may judge
+METRICS = {m: phrase(m) for m in budget_metrics()}  # what a search may judge: name -> how prose names it
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """Claims tested on a study's runs: effect with CIs, the difference and equivalence tests.
 
-A claim (``spec.study.ClaimSpec``) names a metric, a comparison, the direction expected, the
+A claim (``spec.study_schema.ClaimSpec``) names a metric, a comparison, the direction expected, the
 smallest effect of interest (SESOI, fixed in the study file before the runs) and its family.
 ``evaluate(df, claims)`` takes the per-run frame (``report.results.runs_frame``; FINISHED runs
 count) and returns one row per tested hypothesis with raw p-values; ``verdicts.decide`` then
@@ -40,7 +40,7 @@ import pandas as pd
 from scipy import stats as sps
 
 from harness.analysis import stats
-from harness.spec.study import ClaimSpec
+from harness.spec.study_schema import ClaimSpec
 
 CONFIDENCE = 0.95
 BOOT_SEED, BOOT_RESAMPLES = 0, 4000

@@ -38,7 +38,7 @@ from typing import Sequence
 
 import pandas as pd
 
-from harness.spec.study import StudyScene
+from harness.spec.study_schema import StudyScene
 
 METRIC = "psnr"
 COLLAPSE_DB = 3.0  # a finished run more than this below its method's base-cell mean PSNR collapsed

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from harness.spec.study import VarianceSpec
+from harness.spec.study_schema import VarianceSpec
 
 
 def _pooled(groups: list[np.ndarray]) -> tuple[float, int, int]:

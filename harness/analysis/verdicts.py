@@ -28,11 +28,10 @@ import numpy as np
 import pandas as pd
 
 from harness.analysis import claim_tests as C, stats
-from harness.spec.study import CLAIM_GROUPS, ClaimSpec
+from harness.spec.study_schema import ClaimSpec
 
 REPRODUCED, CONTRADICTED, EQUIVALENT, INCONCLUSIVE = "reproduced", "contradicted", "equivalent", "inconclusive"
 NOT_TESTED, NOT_EXERCISED = "not tested", "not exercised"
-VERDICTS = (REPRODUCED, CONTRADICTED, EQUIVALENT, INCONCLUSIVE, NOT_TESTED, NOT_EXERCISED)
 CORRECTION = "holm"
 COLUMNS = ["id", "group", "statement", "metric", "test", "expect", "comparison", "scene", "scope", "method", "n",
            "effect", "ci_low", "ci_high", "ci90_low", "ci90_high", "sesoi", "sesoi_source", "stat_name", "statistic",
@@ -188,11 +187,6 @@ def decide(frame: pd.DataFrame, method: str = CORRECTION, label: str = "") -> pd
         if v != INCONCLUSIVE:
             out.at[i, "n_needed"] = math.nan
     return out
-
-
-def family_names() -> dict[str, str]:
-    """The families (claim groups) and what they hold."""
-    return dict(CLAIM_GROUPS)
 
 
 def in_sesoi_units(row: pd.Series) -> tuple[float, float, float]:

@@ -25,7 +25,7 @@ from harness.analysis.budget_search import BudgetSearch
 from harness.run.runner import run_study
 from harness.spec.plan import plan_runs
 from harness.spec.runs import Selection, expand
-from harness.spec.study import SYNTH_ROOT, ProfileSpec, StudyScene, StudySpec, TableSpec
+from harness.spec.study_schema import SYNTH_ROOT, ProfileSpec, StudyScene, StudySpec, TableSpec
 from harness.tracking.records import load_runs, open_store, tracking_target
 
 

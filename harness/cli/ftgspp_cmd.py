@@ -42,7 +42,7 @@ def _dispatch(cmd: str, args: list[str]) -> int:
 
         return bench_main(args)
     if cmd == "metrics":
-        from ftgspp.metrics import main_metrics
+        from ftgspp.image_metrics import main_metrics
 
         return main_metrics(args)
     if cmd == "weights":

@@ -27,7 +27,7 @@ import pandas as pd
 
 from harness.analysis.reproduction import KEY as RUN_KEY
 from harness.report import COMMITTED_REPORTS
-from harness.spec.study import jobs_speedup
+from harness.spec.study_schema import jobs_speedup
 
 OVERHEAD = 1.45  # wall time of a run / its train_seconds (evaluation, diagnostics, logging): ~12 s on ~26 s
 
@@ -54,8 +54,8 @@ def plan_frame(profile: str = "quick", reports_root: Path = COMMITTED_REPORTS) -
     """One row per study: planned, finished and missing runs, median train seconds, and where
     the finished runs are (``source``: the tracking store, or the committed report)."""
     from harness.report.results import collect
-    from harness.spec.files import list_studies
     from harness.spec.runs import Selection
+    from harness.spec.study_files import list_studies
     from harness.tracking.provenance import trainer_fingerprint
 
     current = trainer_fingerprint()

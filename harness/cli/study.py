@@ -15,8 +15,9 @@ in the working directory unless ``MLFLOW_TRACKING_URI`` or ``tracking.uri=`` say
 otherwise); ``status`` and ``report`` without selection options use the latest ``run``
 invocation of the study. Several ``study run`` invocations (nodes, array jobs, a second
 one by hand) may share one tracking server: each run is claimed with a lease first
-(``harness.lease``), and ``status`` lists the runs in progress with their host and age. Bad input (unknown study, variant or scene, bad override,
-unreachable tracking store) prints one line and exits 2 before anything is written.
+(``harness.run.lease``), and ``status`` lists the runs in progress with their host and age.
+Bad input (unknown study, variant or scene, bad override, unreachable tracking store) prints
+one line and exits 2 before anything is written.
 """
 
 from __future__ import annotations
@@ -31,8 +32,9 @@ from pathlib import Path
 from ftgspp.errors import InputError, exit_on_input_error
 from harness.report import COMMITTED_REPORTS, USER_REPORTS
 from harness.run.launchers import LAUNCHERS
+from harness.spec.metrics import budget_metrics
 from harness.spec.runs import Selection
-from harness.spec.study import PROFILES
+from harness.spec.study_schema import JOBS_SPEEDUP, PROFILES
 
 
 class _Parser(argparse.ArgumentParser):
@@ -68,7 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     _selection_args(run)
     run.add_argument("--jobs", type=int, default=None,
                      help="parallel runs (Hydra joblib launcher); default: the profile's `jobs` (2 in the quick"
-                          " profiles: 1.36x the throughput of 1 job on 2 cores, BENCHMARKS.md), at most one per core")
+                          f" profiles: {JOBS_SPEEDUP}x the throughput of 1 job on 2 cores, BENCHMARKS.md),"
+                          " at most one per core")
     run.add_argument("--launcher", choices=LAUNCHERS, default="basic",
                      help="basic (default), joblib, local (submitit) or slurm (submitit; conf/hydra/launcher/slurm.yaml)")
     run.add_argument("--rerun-stale", action="store_true",
@@ -100,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     budget.add_argument("--max", type=int, default=64_000, help="largest budget to try (default 64000)")
     budget.add_argument("--threshold", type=float, default=0.1, help="dB a doubling must gain (default 0.1)")
     budget.add_argument("--seeds", type=int, default=3, help="runs per budget (default 3)")
-    budget.add_argument("--metric", choices=["psnr", "psnr_cc"], default="psnr",
+    budget.add_argument("--metric", choices=budget_metrics(), default="psnr",
                         help="what a doubling must gain: held-out PSNR (psnr, default) or colour-aligned (psnr_cc),"
                              " which leaves out the held-out camera's colour no budget can learn")
     budget.add_argument("--jobs", type=int, default=None, help="parallel runs (default: one per core, at most 2)")
@@ -123,14 +126,14 @@ def default_jobs(study: str, profile: str) -> int:
     """Parallel runs when ``--jobs`` is not given: the profile's ``jobs`` (the quick profiles
     say 2: runs spend part of their time single-threaded - evaluation, diagnostics, logging),
     at most one per core."""
-    from harness.spec.files import load_study
+    from harness.spec.study_files import load_study
 
     return max(1, min(load_study(study).profile(profile).jobs, os.cpu_count() or 1))
 
 
 def cmd_list() -> int:
-    from harness.spec.files import list_studies, load_study
     from harness.spec.runs import Selection, describe_runs, expand
+    from harness.spec.study_files import list_studies, load_study
 
     for name in list_studies():
         s = load_study(name)
@@ -262,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_status(args)
         if args.command == "report":
             from harness.report.writer import write_report
-            from harness.spec.files import list_studies
+            from harness.spec.study_files import list_studies
 
             if args.all == bool(args.name):
                 raise InputError("study report", "give a study name or --all (not both)")

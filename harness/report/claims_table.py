@@ -16,7 +16,7 @@ import pandas as pd
 from harness.analysis import stats, verdicts as V
 from harness.report.fmt import num, p_text, text
 from harness.report.tables import decimals, latex_escape, pretty
-from harness.spec.study import ClaimSpec
+from harness.spec.study_schema import ClaimSpec
 
 VERDICT_MARK = {V.REPRODUCED: "✅ reproduced", V.CONTRADICTED: "❌ contradicted", V.EQUIVALENT: "🟰 equivalent",
                 V.INCONCLUSIVE: "❔ inconclusive", V.NOT_TESTED: "— not tested", V.NOT_EXERCISED: "⊘ not exercised"}

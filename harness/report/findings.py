@@ -81,7 +81,7 @@ def _medians(study: str, path: Path, out: dict[str, float]) -> None:
 
 def _paper(out: dict[str, float], studies_dir: Path | None) -> None:
     """The paper's numbers as the study files state them: ``ablation.paper.flow_improves.DyNeRF.a``."""
-    from harness.spec.files import list_studies, load_study
+    from harness.spec.study_files import list_studies, load_study
 
     for name in list_studies(studies_dir):
         for claim in load_study(name, studies_dir).claims:

@@ -28,10 +28,10 @@ from harness.report.findings import write_findings
 from harness.report.fmt import p_text, text
 from harness.report.forest import forest_plot
 from harness.report.results import collect, trainer_fingerprints
-from harness.spec.files import list_studies, load_study
 from harness.spec.metrics import add_differences
-from harness.spec.study import CLAIM_GROUPS
-from harness.tracking.provenance import trainer_fingerprint
+from harness.spec.study_files import list_studies, load_study
+from harness.spec.study_schema import CLAIM_GROUPS
+from harness.tracking.provenance import checkout_fingerprint
 
 CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per scene (PSNR vs train time and"
                                                     " #Gaussians, Pareto fronts)"),
@@ -197,7 +197,7 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
         allf.to_csv(root / "claims.csv", index=False)
     forest = forest_plot(allf, root / FOREST) if len(allf) else None
     path = root / "index.md"
-    path.write_text(index_markdown(entries, charts, missing, trainer_fingerprint(), FOREST if forest else ""))
+    path.write_text(index_markdown(entries, charts, missing, checkout_fingerprint(), FOREST if forest else ""))
     write_findings(root, studies_dir)  # every number FINDINGS.md may cite (report.findings)
     n = sum(len(e.frame) for e in entries)
     echo(f"index: {n} claims over {len(entries)} studies with runs ({len(missing)} without) written to {path}")

@@ -30,7 +30,7 @@ from harness.analysis.ladder_breaks import (  # noqa: E402
     ladders_of,
 )
 from harness.report.plots import save_figure  # noqa: E402
-from harness.spec.study import StudyScene  # noqa: E402
+from harness.spec.study_schema import StudyScene  # noqa: E402
 
 LOG_X_LADDERS = ("lr_scale",)  # ladders whose rungs are multiplicative: plotted on a log axis
 

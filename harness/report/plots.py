@@ -4,7 +4,7 @@
   failed runs counted under each variant (the paper's run-to-run figure);
 - ``speed_accuracy_plot``: PSNR against training time and against #Gaussians, Pareto
   front joined, the smallest budget within 0.1 dB of the best starred;
-  ``speed_accuracy_scenes_plot``: the same, one row per scene (``harness.speed_accuracy``);
+  ``speed_accuracy_scenes_plot``: the same, one row per scene (``analysis.speed_accuracy_scenes``);
 - ``stability_plot``: per difficulty cell and method, mean +- std, spread and failure rate.
 """
 

@@ -18,11 +18,11 @@ from typing import Any
 import pandas as pd
 
 from harness.analysis.aggregate import AVERAGE, DOMAIN_COLUMNS, EXTRA_PARAMS, KEY_COLUMNS
-from harness.spec.files import load_study
 from harness.spec.metrics import add_differences
 from harness.spec.plan import PlannedRun, RunKey, plan_runs
 from harness.spec.runs import Selection, expand, standalone_command
-from harness.spec.study import StudySpec
+from harness.spec.study_files import load_study
+from harness.spec.study_schema import StudySpec
 from harness.tracking.records import RunRecord, latest_invocation, load_runs, open_store, select, tracking_target
 from harness.tracking.store import Store
 

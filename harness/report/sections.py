@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import fnmatch
 import math
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +26,7 @@ from harness.report import claims_table, ladder_figures, plots, tables
 from harness.report.fmt import fixed
 from harness.report.results import ReportData
 from harness.spec import metrics as registry
-from harness.spec.study import plural
+from harness.spec.study_schema import plural
 
 
 @dataclass
@@ -254,7 +253,6 @@ def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[P
     ``out/diagnostics/<variant>/<scene>/``; returns (variant, scene, seed, files)."""
     if data.store is None:
         return []
-    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     patterns = list(data.study.diagnostics) or ["*"]
     got = []
     ok = data.df[data.df.status == "FINISHED"].sort_values("seed")
@@ -263,11 +261,7 @@ def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[P
         if found is None:
             continue
         r, keep = found
-        paths = []
-        for f in keep:
-            target = out / "diagnostics" / v / s / Path(f).relative_to("diagnostics")
-            data.store.download_artifact(r.run_id, f, target)
-            paths.append(target)
+        paths = data.store.copy_artifacts(r.run_id, keep, out / "diagnostics" / v / s, under="diagnostics")
         if paths:
             got.append((v, s, int(r.seed), paths))
     return got

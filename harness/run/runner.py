@@ -1,14 +1,18 @@
 """Run a study: expand, skip what already finished, launch the rest, record every outcome.
 
-``run_study`` is what ``study run`` calls:
+``run_study`` is what ``study run`` calls; it reads as its steps:
 
-1. expand the study file into runs (variant x scene x seed) and compose every run's
-   config (``spec.plan``) - bad overrides stop here, before the store is touched;
-2. check the tracking store, skip every (study, variant, scene, seed, config_hash) already
-   FINISHED or claimed by a live worker of another invocation (``run.lease``);
-3. generate missing synthetic scenes, open one MLflow parent run, and launch the rest
-   through a Hydra launcher (``run.launchers``: basic, joblib for ``jobs > 1``, or
-   submitit's local and SLURM executors);
+1. ``_validate``: expand the study file into runs (variant x scene x seed) and compose every
+   run's config (``spec.plan``); bad overrides, launcher arguments or an unusable store stop
+   here, before the store is touched;
+2. ``_open_experiment``, ``_find_pending``: read the study's runs and skip every (study,
+   variant, scene, seed, config_hash) already FINISHED or claimed by a live worker of
+   another invocation (``run.lease``);
+3. ``_prepare``: generate missing synthetic scenes, compile the cpu kernels and wait for the
+   warm workers (``run.prewarm``), all before ``_open_parent`` opens one MLflow parent run;
+   ``_launch_runs`` launches the rest through a Hydra launcher (``run.launchers``: basic,
+   joblib for ``jobs > 1``, or submitit's local and SLURM executors) and ``_finish`` ends the
+   parent run with the counts;
 4. each job runs a ``run.task.RunTask``: it claims, trains and records its child run.
 """
 
@@ -26,13 +30,13 @@ from typing import Any, Callable
 from ftgspp.errors import InputError
 from harness.run import lease
 from harness.run.launchers import check_launcher, check_launcher_args, launch, split_launcher_args
-from harness.run.prewarm import prewarm
+from harness.run.prewarm import Prewarm, prewarm
 from harness.run.scenes import Generator, ensure_scene, scene_lock
 from harness.run.task import JobInfo, RunTask, TrainFn
-from harness.spec.files import load_study
 from harness.spec.plan import PlannedRun, plan_runs
 from harness.spec.runs import Selection, command_line, describe_runs, expand
-from harness.spec.study import StudySpec, jobs_speedup
+from harness.spec.study_files import load_study
+from harness.spec.study_schema import StudySpec, jobs_speedup
 from harness.tracking.conventions import experiment_tags, scene_dataset, source_tags, ui_link
 from harness.tracking.provenance import git_sha, trainer_fingerprint
 from harness.tracking.records import RunRecord, load_runs, tracking_target
@@ -56,6 +60,22 @@ class StudyOutcome:
     results: list[dict[str, Any]] = field(default_factory=list)
 
 
+@dataclass(frozen=True)
+class Invocation:
+    """One validated ``study run``: its planned runs, where they are recorded, how they run."""
+
+    name: str
+    study: StudySpec
+    sel: Selection  # without the launcher's overrides (``hydra.launcher.*``: ``launcher_args``)
+    planned: list[PlannedRun]
+    command: str
+    uri: str
+    experiment: str
+    jobs: int
+    launcher: str
+    launcher_args: list[str]
+    lease_s: float
+    out_root: Path
 
 
 WARMUP = (sys.executable, "-m", "ftgspp.bench.warmup")
@@ -118,19 +138,134 @@ def foreign_domain_notes(existing: list[RunRecord], planned: list[PlannedRun]) -
     return notes
 
 
-def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jobs: int, launcher: str,
-                 launcher_args: list[str], command: str, planned: list[PlannedRun],
-                 todo: list[PlannedRun]) -> tuple[str, str]:
+def run_study(
+    name: str,
+    sel: Selection,
+    *,
+    jobs: int = 1,
+    launcher: str = "basic",
+    lease_s: float | None = None,
+    studies_dir: Path | None = None,
+    out_root: Path = OUT_ROOT,
+    train_fn: TrainFn | None = None,
+    generate: Generator | None = None,
+    echo: Callable[[str], None] = print,
+    rerun_stale: bool = False,
+    study: StudySpec | None = None,
+) -> StudyOutcome:
+    """Run the missing or failed runs of study ``name``; see the module docstring. ``study``:
+    a spec built in code (``study budget``, cli.budget) instead of ``studies/<name>.yaml``."""
+    inv = _validate(name, sel, jobs, launcher, lease_s, studies_dir, out_root, study)
+    # the workers import and load their kernels while this process opens the store and makes scenes
+    warm = prewarm(launcher, jobs, inv.launcher_args) if train_fn is None else None
+    store, exp_id = _open_experiment(inv)
+    todo, elsewhere, trainer = _find_pending(inv, store, rerun_stale, echo)
+    outcome = StudyOutcome(total=len(inv.planned), skipped=len(inv.planned) - len(todo), launched=len(todo))
+    _announce(inv, todo, elsewhere, echo)
+    if not todo:
+        if warm is not None:
+            warm.wait()  # nothing to run: the warm-up ends before the process does (seconds)
+        return outcome
+    profile = inv.study.profile(inv.sel.profile)
+    echo(f"expected: {profile.estimate(len(todo), jobs)}")
+    _prepare(inv, todo, generate, train_fn, warm, echo)  # scenes, kernels, warm workers
+    parent_id, stamp = _open_parent(store, exp_id, inv, todo)
+    outcome.parent_run_id = parent_id
+    # absolute: submitit's folder lives under it and jobs on other nodes must find it
+    sweep_dir = (inv.out_root / name / f"{stamp}-{parent_id[:8]}").resolve()
+    task = _task(inv, exp_id, parent_id, todo, sweep_dir, profile.run_seconds, train_fn, trainer)
+    _launch_runs(inv, store, task, todo, sweep_dir, outcome)
+    _finish(inv, store, exp_id, outcome, echo)
+    return outcome
+
+
+def _validate(name: str, sel: Selection, jobs: int, launcher: str, lease_s: float | None, studies_dir: Path | None,
+              out_root: Path, study: StudySpec | None) -> Invocation:
+    """Plan every run and check the launcher and the store: bad input stops here, before the
+    store is touched."""
+    if jobs < 1:
+        raise InputError("--jobs", "must be at least 1")
+    try:
+        lease_s = lease.lease_seconds(lease_s)
+    except ValueError as exc:
+        raise InputError("--lease", str(exc)) from None
+    study = study or load_study(name, studies_dir)
+    command = command_line(name, sel, jobs, launcher)
+    run_overrides, launcher_args = split_launcher_args(sel.overrides)
+    sel = dataclasses.replace(sel, overrides=run_overrides)
+    planned = plan_runs(expand(study, sel))  # every bad input stops here ...
+    uri, experiment = tracking_target(sel.overrides, planned[0].params, name)
+    check_launcher(launcher, uri)
+    check_launcher_args(launcher, launcher_args, Path(out_root).resolve())
+    check_store(uri)  # ... or here, before anything is written
+    return Invocation(name, study, sel, planned, command, uri, experiment, jobs, launcher, launcher_args, lease_s,
+                      Path(out_root))
+
+
+def _open_experiment(inv: Invocation) -> tuple[Store, str]:
+    """The store and the study's experiment id; the experiment is created once, here, before
+    any worker starts, and its description is set."""
+    store = Store(inv.uri)
+    exp_id = store.experiment_id(inv.experiment)
+    assert exp_id is not None
+    store.set_experiment_tags(exp_id, experiment_tags(inv.study.question,
+                                                      f"study run {inv.name} --profile {inv.sel.profile}",
+                                                      f"study report {inv.name}"))
+    return store, exp_id
+
+
+def _find_pending(inv: Invocation, store: Store, rerun_stale: bool,
+                  echo: Callable[[str], None]) -> tuple[list[PlannedRun], list[RunRecord], str]:
+    """(runs to launch, live claims of other invocations, the trainer fingerprint a finished run
+    must carry to count as done: "" for any), from the study's runs in the store; says which
+    finished runs come from another determinism domain."""
+    existing = load_runs(store, inv.experiment, inv.name)
+    trainer = trainer_fingerprint() if rerun_stale else ""  # --rerun-stale: runs of older code are not done
+    todo, elsewhere = pending(existing, inv.planned, inv.lease_s, trainer)
+    for line in foreign_domain_notes(existing, inv.planned):
+        echo(line)
+    return todo, elsewhere, trainer
+
+
+def _announce(inv: Invocation, todo: list[PlannedRun], elsewhere: list[RunRecord], echo: Callable[[str], None]) -> None:
+    """What is planned, already finished, running elsewhere (one line each) and left to run."""
+    n_done = len(inv.planned) - len(todo) - len(elsewhere)
+    echo(f"{inv.name} ({inv.sel.profile}): {describe_runs([p.spec for p in inv.planned])};"
+         f" {n_done} already finished, " + (f"{len(elsewhere)} running elsewhere, " if elsewhere else "")
+         + f"{len(todo)} to run"
+         + (f" with {inv.jobs} parallel jobs" if inv.jobs > 1 and todo else "")
+         + (f" through the {inv.launcher} launcher" if inv.launcher != "basic" and todo else ""))
+    for rec in elsewhere:
+        echo(f"  running elsewhere: {rec.tags.get('mlflow.runName', rec.key)} ({lease.describe(rec)})")
+
+
+def _prepare(inv: Invocation, todo: list[PlannedRun], generate: Generator | None, train_fn: TrainFn | None,
+             warm: Prewarm | None, echo: Callable[[str], None]) -> None:
+    """Make the missing synthetic scenes, compile the cpu kernels once and wait for the warm
+    workers: all before the parent run exists, so an interrupt here leaves nothing RUNNING."""
+    for scene in {p.spec.scene.name: p.spec.scene for p in todo}.values():
+        with scene_lock(scene):  # another invocation may be generating it right now
+            ensure_scene(scene, generate, echo)
+    if train_fn is None and inv.launcher != "slurm":  # workers on this machine train with the cpu kernels
+        warm_kernels(echo)
+    if warm is not None:
+        warm.wait()
+        if warm.error is not None:
+            echo(f"  worker warm-up failed ({type(warm.error).__name__}: {warm.error}); the launcher starts its own")
+
+
+def _open_parent(store: Store, exp_id: str, inv: Invocation, todo: list[PlannedRun]) -> tuple[str, str]:
     """The invocation's parent run (tags, params, the study file); returns (run id, stamp)."""
+    study, sel, planned = inv.study, inv.sel, inv.planned
     stamp = time.strftime("%Y%m%d-%H%M%S")
     tags = {
         "study": study.name,
         "profile": sel.profile,
         "kind": "study",
-        "invocation": json.dumps({**asdict(sel), "jobs": jobs, "launcher": launcher,
-                                  "launcher_overrides": launcher_args}),
-        "command": command,
-        **source_tags(command),
+        "invocation": json.dumps({**asdict(sel), "jobs": inv.jobs, "launcher": inv.launcher,
+                                  "launcher_overrides": inv.launcher_args}),
+        "command": inv.command,
+        **source_tags(inv.command),
         "git_sha": git_sha(),
         "trainer_fingerprint": trainer_fingerprint(),
         "n_runs": str(len(planned)),
@@ -138,7 +273,7 @@ def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jo
     }
     parent_id = store.create_run(exp_id, f"{study.name}-{sel.profile}-{stamp}", tags)
     n_seeds = len({p.spec.seed for p in planned})
-    store.log_batch(parent_id, params={"profile": sel.profile, "jobs": jobs, "launcher": launcher,
+    store.log_batch(parent_id, params={"profile": sel.profile, "jobs": inv.jobs, "launcher": inv.launcher,
                                        "seeds": n_seeds, "base_seed": study.base_seed})
     # the study's scenes as dataset inputs: the runs table shows them on the parent's row
     scenes = {p.spec.scene.name: p for p in todo}.values()
@@ -147,6 +282,49 @@ def _open_parent(store: Store, exp_id: str, study: StudySpec, sel: Selection, jo
     if study.path is not None:  # the study definition this invocation used
         store.log_artifact(parent_id, study.path)
     return parent_id, stamp
+
+
+def _task(inv: Invocation, exp_id: str, parent_id: str, todo: list[PlannedRun], sweep_dir: Path, run_seconds: float,
+          train_fn: TrainFn | None, trainer: str) -> RunTask:
+    """What each job runs: claim, train and record its child run of ``parent_id``."""
+    return RunTask(
+        uri=inv.uri,
+        experiment_id=exp_id,
+        parent_run_id=parent_id,
+        jobs=[JobInfo(p.spec.label, p.tags, p.config_hash, p.spec.scene.synth, p.params.get("threads", ""))
+              for p in todo],
+        progress_path=str(sweep_dir / "progress.jsonl"),
+        started_at=time.time(),
+        expected_total_s=len(todo) * run_seconds / jobs_speedup(inv.jobs),
+        train_fn=train_fn,
+        lease_s=inv.lease_s,
+        command=inv.command,
+        trainer=trainer,
+    )
+
+
+def _launch_runs(inv: Invocation, store: Store, task: RunTask, todo: list[PlannedRun], sweep_dir: Path,
+                 outcome: StudyOutcome) -> None:
+    """Launch ``todo`` and count what came back into ``outcome``. A launcher that raises ends
+    the parent run FAILED (KILLED on an interrupt) and the error goes on, except under submitit
+    (local, slurm): a job that died fails the whole array, but every run recorded itself."""
+    parent_id = task.parent_run_id
+    # progress bars of parallel workers would interleave (progress is not part of the hash)
+    quiet = ["progress=false"] if inv.jobs > 1 or inv.launcher in ("local", "slurm") else []
+    job_overrides = [[*p.spec.overrides, *quiet, f"hydra.sweep.subdir={p.spec.label}"] for p in todo]
+    try:  # through the workers warmed above (run.prewarm), which the launcher reuses
+        returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=inv.jobs, job_name=f"study_{inv.name}",
+                         launcher=inv.launcher, launcher_args=inv.launcher_args)
+        _tally(outcome, todo, returns)
+    except Exception as exc:  # e.g. submitit's UncompletedJobError: a job died without returning
+        if inv.launcher not in ("local", "slurm"):
+            store.terminate(parent_id, "FAILED", {"error": f"{type(exc).__name__}: {exc}"[:1000]})
+            raise
+        _tally_from_store(outcome, store, inv.experiment, inv.name, parent_id, exc)
+    except BaseException as exc:
+        status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
+        store.terminate(parent_id, status, {"error": f"{type(exc).__name__}: {exc}"[:1000]})
+        raise
 
 
 def _tally(outcome: StudyOutcome, todo: list[PlannedRun], returns: list[Any]) -> None:
@@ -185,115 +363,14 @@ def _tally_from_store(outcome: StudyOutcome, store: Store, experiment: str, stud
           flush=True)
 
 
-def run_study(
-    name: str,
-    sel: Selection,
-    *,
-    jobs: int = 1,
-    launcher: str = "basic",
-    lease_s: float | None = None,
-    studies_dir: Path | None = None,
-    out_root: Path = OUT_ROOT,
-    train_fn: TrainFn | None = None,
-    generate: Generator | None = None,
-    echo: Callable[[str], None] = print,
-    rerun_stale: bool = False,
-    study: StudySpec | None = None,
-) -> StudyOutcome:
-    """Run the missing or failed runs of study ``name``; see the module docstring. ``study``:
-    a spec built in code (``run.budget``) instead of ``studies/<name>.yaml``."""
-    if jobs < 1:
-        raise InputError("--jobs", "must be at least 1")
-    try:
-        lease_s = lease.lease_seconds(lease_s)
-    except ValueError as exc:
-        raise InputError("--lease", str(exc)) from None
-    study = study or load_study(name, studies_dir)
-    command = command_line(name, sel, jobs, launcher)
-    run_overrides, launcher_args = split_launcher_args(sel.overrides)
-    sel = dataclasses.replace(sel, overrides=run_overrides)
-    planned = plan_runs(expand(study, sel))  # every bad input stops here ...
-    uri, exp_name = tracking_target(sel.overrides, planned[0].params, name)
-    check_launcher(launcher, uri)
-    check_launcher_args(launcher, launcher_args, Path(out_root).resolve())
-    check_store(uri)  # ... or here, before anything is written
-    # the workers import and load their kernels while this process opens the store and makes scenes
-    warm = prewarm(launcher, jobs, launcher_args) if train_fn is None else None
-
-    store = Store(uri)
-    exp_id = store.experiment_id(exp_name)  # created once, before any worker starts
-    assert exp_id is not None
-    store.set_experiment_tags(exp_id, experiment_tags(study.question, f"study run {name} --profile {sel.profile}",
-                                                      f"study report {name}"))
-    existing = load_runs(store, exp_name, name)
-    trainer = trainer_fingerprint() if rerun_stale else ""  # --rerun-stale: runs of older code are not done
-    todo, elsewhere = pending(existing, planned, lease_s, trainer)
-    for line in foreign_domain_notes(existing, planned):
-        echo(line)
-    outcome = StudyOutcome(total=len(planned), skipped=len(planned) - len(todo), launched=len(todo))
-    n_done = outcome.skipped - len(elsewhere)
-    echo(f"{name} ({sel.profile}): {describe_runs([p.spec for p in planned])};"
-         f" {n_done} already finished, " + (f"{len(elsewhere)} running elsewhere, " if elsewhere else "")
-         + f"{len(todo)} to run"
-         + (f" with {jobs} parallel jobs" if jobs > 1 and todo else "")
-         + (f" through the {launcher} launcher" if launcher != "basic" and todo else ""))
-    for rec in elsewhere:
-        echo(f"  running elsewhere: {rec.tags.get('mlflow.runName', rec.key)} ({lease.describe(rec)})")
-    if not todo:
-        if warm is not None:
-            warm.wait()  # nothing to run: the warm-up ends before the process does (seconds)
-        return outcome
-    profile = study.profile(sel.profile)
-    echo(f"expected: {profile.estimate(len(todo), jobs)}")
-
-    for scene in {p.spec.scene.name: p.spec.scene for p in todo}.values():
-        with scene_lock(scene):  # another invocation may be generating it right now
-            ensure_scene(scene, generate, echo)
-    if train_fn is None and launcher != "slurm":  # workers on this machine train with the cpu kernels
-        warm_kernels(echo)
-    if warm is not None:  # before the parent run exists: an interrupt here leaves nothing RUNNING
-        warm.wait()
-        if warm.error is not None:
-            echo(f"  worker warm-up failed ({type(warm.error).__name__}: {warm.error}); the launcher starts its own")
-    parent_id, stamp = _open_parent(store, exp_id, study, sel, jobs, launcher, launcher_args, command, planned, todo)
-    outcome.parent_run_id = parent_id
-    # absolute: submitit's folder lives under it and jobs on other nodes must find it
-    sweep_dir = (Path(out_root) / name / f"{stamp}-{parent_id[:8]}").resolve()
-    task = RunTask(
-        uri=uri,
-        experiment_id=exp_id,
-        parent_run_id=parent_id,
-        jobs=[JobInfo(p.spec.label, p.tags, p.config_hash, p.spec.scene.synth, p.params.get("threads", ""))
-              for p in todo],
-        progress_path=str(sweep_dir / "progress.jsonl"),
-        started_at=time.time(),
-        expected_total_s=len(todo) * profile.run_seconds / jobs_speedup(jobs),
-        train_fn=train_fn,
-        lease_s=lease_s,
-        command=command,
-        trainer=trainer,
-    )
-    # progress bars of parallel workers would interleave (progress is not part of the hash)
-    quiet = ["progress=false"] if jobs > 1 or launcher in ("local", "slurm") else []
-    job_overrides = [[*p.spec.overrides, *quiet, f"hydra.sweep.subdir={p.spec.label}"] for p in todo]
-    try:  # through the workers warmed above (run.prewarm), which the launcher reuses
-        returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=jobs, job_name=f"study_{name}",
-                         launcher=launcher, launcher_args=launcher_args)
-        _tally(outcome, todo, returns)
-    except Exception as exc:  # e.g. submitit's UncompletedJobError: a job died without returning
-        if launcher not in ("local", "slurm"):
-            store.terminate(parent_id, "FAILED", {"error": f"{type(exc).__name__}: {exc}"[:1000]})
-            raise
-        _tally_from_store(outcome, store, exp_name, name, parent_id, exc)
-    except BaseException as exc:
-        status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
-        store.terminate(parent_id, status, {"error": f"{type(exc).__name__}: {exc}"[:1000]})
-        raise
-    store.terminate(parent_id, "FINISHED", {"n_finished": str(outcome.finished), "n_failed": str(outcome.failed),
-                                            "n_diverged": str(outcome.diverged),
-                                            "n_claimed_elsewhere": str(outcome.claimed_elsewhere)})
+def _finish(inv: Invocation, store: Store, exp_id: str, outcome: StudyOutcome, echo: Callable[[str], None]) -> None:
+    """End the parent run FINISHED with the counts; say what happened and where to browse it."""
+    store.terminate(outcome.parent_run_id, "FINISHED", {"n_finished": str(outcome.finished),
+                                                        "n_failed": str(outcome.failed),
+                                                        "n_diverged": str(outcome.diverged),
+                                                        "n_claimed_elsewhere": str(outcome.claimed_elsewhere)})
     elsewhere_txt = f", {outcome.claimed_elsewhere} claimed by other invocations" if outcome.claimed_elsewhere else ""
-    echo(f"{name}: {outcome.finished} finished, {outcome.failed} failed ({outcome.diverged} diverged),"
-         f" {outcome.skipped} skipped{elsewhere_txt}; parent run {parent_id} in {exp_name} at {uri}")
-    echo(f"browse: {ui_link(uri, exp_id)}")
-    return outcome
+    echo(f"{inv.name}: {outcome.finished} finished, {outcome.failed} failed ({outcome.diverged} diverged),"
+         f" {outcome.skipped} skipped{elsewhere_txt}; parent run {outcome.parent_run_id} in {inv.experiment}"
+         f" at {inv.uri}")
+    echo(f"browse: {ui_link(inv.uri, exp_id)}")

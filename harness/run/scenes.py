@@ -19,7 +19,7 @@ import shutil
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from harness.spec.study import StudyScene
+from harness.spec.study_schema import StudyScene
 
 MARKER = ".study_synth.json"
 # generate(out, layout, preset, seed, **extra)

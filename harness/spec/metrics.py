@@ -1,12 +1,17 @@
 """The metric registry: one entry per metric a run logs or a report derives.
 
-An entry carries everything the harness needs to know about a metric: its label in tables
-and plots, its decimals, which direction is better, and how runs are combined
-(``mean`` over runs, or ``difference``: a per-run difference of two other metrics, e.g. the
-gap between two metric conventions on the same renders). Study validation (which metrics a
+An entry joins a metric's computation and its presentation: where its value comes from
+(``source``: the trainer, held-out evaluation, the diagnostics, the run's resources, MLflow's
+system sampler, or a per-run difference of two other metrics), the ``ftgspp.image_metrics``
+evaluator that computes it (``compute``, held-out image metrics), its label in tables and
+plots, its decimals, which direction is better, whether a claim may test it, whether it is
+bit-reproducible, and the smallest effect of interest. Study validation (which metrics a
 claim may name), the tables (labels, decimals, best/second-best), aggregation (direction,
-derived per-run columns) and the reports all read this registry, so a new metric is one
-``register(Metric(...))`` call (or one line below).
+derived per-run columns), the budget search and the reports all read this registry, so a
+new metric is one ``register(Metric(...))`` call (or one line below); a new image metric is
+one function and entry in ``ftgspp.image_metrics.METRICS`` (ftgspp never imports the
+harness) plus one ``image_metric(...)`` line here. A test trains a tiny run and fails when it
+logs a metric without an entry (tests/harness/test_metric_registry.py).
 
 Names are exact (``psnr``) or ``fnmatch`` patterns for families (``lpips_*``); a name that
 matches no entry gets its own name as label, 3 decimals and "higher is better".
@@ -15,12 +20,19 @@ matches no entry gets its own name as label, 3 decimals and "higher is better".
 from __future__ import annotations
 
 import fnmatch
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Iterable
 
 import pandas as pd
 
+if TYPE_CHECKING:  # the evaluators load torch: looked up when asked for, not on import
+    from ftgspp.image_metrics import ImageMetric
+
 HIGHER, LOWER, NEITHER = "higher", "lower", ""
 MEAN, DIFFERENCE = "mean", "difference"
+# where a metric's value comes from (DIFFERENCE: ``of[0] - of[1]`` per run, derived by the report)
+TRAINER, EVALUATION, DIAGNOSTICS, RESOURCES, SYSTEM = "trainer", "evaluation", "diagnostics", "resources", "system"
+SOURCES = (TRAINER, EVALUATION, DIAGNOSTICS, RESOURCES, SYSTEM, DIFFERENCE)
 
 
 @dataclass(frozen=True)
@@ -31,14 +43,40 @@ class Metric:
     label: str = ""  # table/axis label (default: the name)
     decimals: int = 3
     better: str = HIGHER  # higher | lower | "" (a difference between conventions: no better side)
-    aggregation: str = MEAN  # mean: per-run values; difference: ``of[0] - of[1]`` per run
+    source: str = TRAINER  # one of SOURCES; DIFFERENCE: ``of[0] - of[1]`` per run (with ``of``)
     of: tuple[str, str] = ("", "")  # the two metrics of a difference
     claimable: bool = True  # a study's claims may test it (exact names only)
     deterministic: bool = True  # same config, seed and domain -> same bits (timings are not)
+    computed_by: str = ""  # the key of the ftgspp.image_metrics evaluator computing it (held-out images)
+    unit: str = ""  # the unit its label ends with, e.g. "dB"
+    phrase: str = ""  # how a sentence names it (default: the label)
+    smallest_effect: float | None = None  # smallest effect of interest, in its unit (None: not set)
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES or self.better not in (HIGHER, LOWER, NEITHER):
+            raise ValueError(f"metric '{self.name}': source '{self.source}', better '{self.better}'")
+        if self.computed_by and self.source != EVALUATION:
+            raise ValueError(f"metric '{self.name}': computed by an image metric, so its source is evaluation")
+        if any(self.of) and self.source != DIFFERENCE:
+            raise ValueError(f"metric '{self.name}': only a difference names two metrics (of)")
+
+    @property
+    def compute(self) -> ImageMetric | None:
+        """The ``ftgspp.image_metrics`` evaluator computing it (None: another source)."""
+        if not self.computed_by:
+            return None
+        from ftgspp.image_metrics import METRICS
+
+        return METRICS[self.computed_by]
 
     @property
     def is_pattern(self) -> bool:
         return any(ch in self.name for ch in "*?[")
+
+    @property
+    def aggregation(self) -> str:
+        """How runs are combined: ``mean`` of per-run values, or ``difference`` (derived per run)."""
+        return DIFFERENCE if self.source == DIFFERENCE else MEAN
 
     @property
     def title(self) -> str:
@@ -61,14 +99,34 @@ def unregister(name: str) -> None:
     _REGISTRY.pop(name, None)
 
 
-def lookup(name: str) -> Metric:
-    """The entry for ``name``: exact, else the first matching pattern, else a default."""
+def image_metric(name: str, label: str, decimals: int, better: str = HIGHER, **fields: Any) -> Metric:
+    """The entry of a held-out image metric, computed by ``ftgspp.image_metrics.METRICS[name]``."""
+    return Metric(name, label, decimals, better, EVALUATION, computed_by=name, **fields)
+
+
+def entries() -> tuple[Metric, ...]:
+    """Every entry, exact names and families, in registry order."""
+    return tuple(_REGISTRY.values())
+
+
+def registered(name: str) -> Metric | None:
+    """The entry for ``name``: exact, else the first matching family pattern, else None."""
     if name in _REGISTRY and not _REGISTRY[name].is_pattern:
         return _REGISTRY[name]
     for m in _REGISTRY.values():
         if m.is_pattern and fnmatch.fnmatch(name, m.name):
-            return Metric(name, m.label, m.decimals, m.better, m.aggregation, m.of, m.claimable, m.deterministic)
-    return Metric(name)
+            return replace(m, name=name)
+    return None
+
+
+def unregistered(names: Iterable[str]) -> list[str]:
+    """The names (sorted) that neither an exact entry nor a family pattern covers."""
+    return sorted({n for n in names if registered(n) is None})
+
+
+def lookup(name: str) -> Metric:
+    """The entry for ``name``: exact, else the first matching pattern, else a default."""
+    return registered(name) or Metric(name)
 
 
 def claimable() -> tuple[str, ...]:
@@ -76,9 +134,25 @@ def claimable() -> tuple[str, ...]:
     return tuple(m.name for m in _REGISTRY.values() if m.claimable and not m.is_pattern)
 
 
+def names(source: str | None = None, unit: str | None = None) -> tuple[str, ...]:
+    """Exact metric names in registry order, of one ``source`` and/or ``unit`` if given."""
+    return tuple(m.name for m in _REGISTRY.values() if not m.is_pattern
+                 and source in (None, m.source) and unit in (None, m.unit))
+
+
+def budget_metrics() -> tuple[str, ...]:
+    """What a Gaussian-budget search may judge: the held-out metrics in dB (its threshold is in dB)."""
+    return names(EVALUATION, "dB")
+
+
+def phases() -> tuple[str, ...]:
+    """Where a run's time goes, in the order the phases run: its resource metrics in seconds."""
+    return names(RESOURCES, "s")
+
+
 def differences() -> dict[str, tuple[str, str]]:
     """Derived metrics: name -> (a, b), value a - b per run."""
-    return {m.name: m.of for m in _REGISTRY.values() if m.aggregation == DIFFERENCE}
+    return {m.name: m.of for m in _REGISTRY.values() if m.aggregation == DIFFERENCE and all(m.of)}
 
 
 def add_differences(df: pd.DataFrame) -> pd.DataFrame:
@@ -100,69 +174,79 @@ def label(name: str) -> str:
     return lookup(name).label or name
 
 
+def phrase(name: str) -> str:
+    """How a sentence names the metric (``held-out PSNR``), else its label."""
+    return lookup(name).phrase or label(name)
+
+
 def lower_is_better(name: str) -> bool:
     return lookup(name).better == LOWER
 
 
 # --- the metrics of ftgspp's trainer, evaluation and diagnostics ---------------------------
 for _m in (
-    Metric("psnr", "PSNR (dB)", 2),
-    Metric("psnr_cc", "PSNR colour-aligned (dB)", 2),
-    Metric("train_psnr", "training-view PSNR (dB)", 2),
+    image_metric("psnr", "PSNR (dB)", 2, unit="dB", phrase="held-out PSNR"),
+    image_metric("psnr_cc", "PSNR colour-aligned (dB)", 2, unit="dB", phrase="colour-aligned held-out PSNR"),
+    Metric("train_psnr", "training-view PSNR (dB)", 2, unit="dB"),
     Metric("l1", "training-view L1", 5, LOWER, claimable=False),
     # torch's reductions over the Gaussians (the regularisers) change in the last bit with the
     # thread count; l1 and train_psnr are summed by numpy in a fixed order and do not
     Metric("loss", "training loss", 5, LOWER, claimable=False, deterministic=False),
+    Metric("diverged_at", "iteration of divergence", 0, NEITHER, claimable=False),  # FAILED runs only
     Metric("cc_mean_delta", "‖mean ΔM‖ of the colour transforms", 4, NEITHER),
     Metric("cc_mean_bias", "‖mean b‖ of the colour transforms", 4, NEITHER),
-    Metric("ssim1", "SSIM (data range 1)", 4),
-    Metric("ssim2", "SSIM (data range 2)", 4),
-    Metric("dssim1", "DSSIM (data range 1)", 4, LOWER),
-    Metric("dssim2", "DSSIM (data range 2)", 4, LOWER),
-    Metric("lpips_alex", "LPIPS-Alex ([-1,1] input)", 4, LOWER),
-    Metric("lpips_vgg", "LPIPS-VGG ([-1,1] input)", 4, LOWER),
-    Metric("lpips_alex_01", "LPIPS-Alex ([0,1] input, 3DGS convention)", 4, LOWER),
-    Metric("lpips_vgg_01", "LPIPS-VGG ([0,1] input, 3DGS convention)", 4, LOWER),
-    Metric("train_seconds", "train time (s)", 1, LOWER, deterministic=False),
-    Metric("iters_per_second", "iterations/s", 1, deterministic=False),
-    Metric("peak_rss_mb", "peak RSS (MB)", 0, LOWER, deterministic=False),
-    # where a run's time goes besides training (benchmarks/runs_per_hour.py)
-    Metric("init_seconds", "initialisation (s)", 1, LOWER, claimable=False, deterministic=False),
-    Metric("eval_seconds", "evaluation (s)", 1, LOWER, claimable=False, deterministic=False),
-    Metric("eval_lpips_seconds", "LPIPS (s)", 1, LOWER, claimable=False, deterministic=False),
-    Metric("diagnostics_seconds", "diagnostics (s)", 1, LOWER, claimable=False, deterministic=False),
+    image_metric("ssim1", "SSIM (data range 1)", 4),
+    image_metric("ssim2", "SSIM (data range 2)", 4),
+    image_metric("dssim1", "DSSIM (data range 1)", 4, LOWER),
+    image_metric("dssim2", "DSSIM (data range 2)", 4, LOWER),
+    image_metric("lpips_alex", "LPIPS-Alex ([-1,1] input)", 4, LOWER),
+    image_metric("lpips_vgg", "LPIPS-VGG ([-1,1] input)", 4, LOWER),
+    image_metric("lpips_alex_01", "LPIPS-Alex ([0,1] input, 3DGS convention)", 4, LOWER),
+    image_metric("lpips_vgg_01", "LPIPS-VGG ([0,1] input, 3DGS convention)", 4, LOWER),
+    Metric("eval_frames", "held-out frames scored", 0, NEITHER, EVALUATION, claimable=False),
+    # where a run's time goes, phase by phase in this order (``phases``), and its memory
+    Metric("init_seconds", "initialisation (s)", 1, LOWER, RESOURCES, claimable=False, deterministic=False, unit="s"),
+    Metric("train_seconds", "train time (s)", 1, LOWER, RESOURCES, deterministic=False, unit="s"),
+    Metric("eval_seconds", "evaluation (s)", 1, LOWER, RESOURCES, claimable=False, deterministic=False, unit="s"),
+    Metric("eval_lpips_seconds", "LPIPS (s)", 1, LOWER, RESOURCES, claimable=False, deterministic=False, unit="s"),
+    Metric("diagnostics_seconds", "diagnostics (s)", 1, LOWER, RESOURCES, claimable=False, deterministic=False,
+           unit="s"),
+    Metric("iters_per_second", "iterations/s", 1, HIGHER, RESOURCES, deterministic=False),
+    Metric("peak_rss_mb", "peak RSS (MB)", 0, LOWER, RESOURCES, deterministic=False, unit="MB"),
     Metric("n_gaussians", "#Gaussians", 0, LOWER),
     # diagnostics (ftgspp.diagnostics.diagnose via the trainer)
-    Metric("lifetime_long_on_static"),
-    Metric("lifetime_short_on_dynamic"),
-    Metric("lifetime_median_fraction"),
-    Metric("lifetime_partition_contrast"),
-    Metric("lifetime_short_share_dynamic"),
-    Metric("lifetime_short_share_static"),
-    Metric("lifetime_short_share_transient"),  # scenes with objects that exist for part of the clip
-    Metric("lifetime_transient_contrast"),
-    Metric("motion_epe_dynamic", better=LOWER),
-    Metric("motion_leak_static", better=LOWER),
-    Metric("motion_role_switch", better=LOWER),
-    Metric("xt_slice_mae"),
-    Metric("flicker_static"),
-    Metric("flicker_static_gt"),
+    Metric("lifetime_long_on_static", source=DIAGNOSTICS),
+    Metric("lifetime_short_on_dynamic", source=DIAGNOSTICS),
+    Metric("lifetime_median_fraction", source=DIAGNOSTICS),
+    Metric("lifetime_partition_contrast", source=DIAGNOSTICS),
+    Metric("lifetime_short_share_dynamic", source=DIAGNOSTICS),
+    Metric("lifetime_short_share_static", source=DIAGNOSTICS),
+    Metric("lifetime_short_share_transient", source=DIAGNOSTICS),  # scenes with objects that exist for part of the clip
+    Metric("lifetime_transient_contrast", source=DIAGNOSTICS),
+    Metric("motion_epe_dynamic", better=LOWER, source=DIAGNOSTICS),
+    Metric("motion_leak_static", better=LOWER, source=DIAGNOSTICS),
+    Metric("motion_role_switch", better=LOWER, source=DIAGNOSTICS),
+    Metric("xt_slice_mae", source=DIAGNOSTICS),
+    Metric("flicker_static", source=DIAGNOSTICS),
+    Metric("flicker_static_gt", source=DIAGNOSTICS),
     Metric("relocated_total", "Gaussians relocated per run", 0, NEITHER),
-    Metric("lpips_missing", "scored without LPIPS (weights missing)", 0, NEITHER, claimable=False, deterministic=False),
+    Metric("relocated", "Gaussians relocated at a step", 0, NEITHER, claimable=False),  # a step metric
+    Metric("lpips_missing", "scored without LPIPS (weights missing)", 0, NEITHER, EVALUATION, claimable=False,
+           deterministic=False),
     # per-run gaps between metric conventions on the same renders (the lpips study)
     Metric("gap_lpips_alex", "LPIPS-Alex: [0,1] − [-1,1] input", 4, NEITHER, DIFFERENCE, ("lpips_alex_01", "lpips_alex")),
     Metric("gap_lpips_vgg", "LPIPS-VGG: [0,1] − [-1,1] input", 4, NEITHER, DIFFERENCE, ("lpips_vgg_01", "lpips_vgg")),
     Metric("gap_ssim", "SSIM: data range 2 − 1", 4, NEITHER, DIFFERENCE, ("ssim2", "ssim1")),
-    Metric("psnr_cc_gap", "colour-aligned − raw PSNR (dB)", 2, NEITHER, DIFFERENCE, ("psnr_cc", "psnr")),
+    Metric("psnr_cc_gap", "colour-aligned − raw PSNR (dB)", 2, NEITHER, DIFFERENCE, ("psnr_cc", "psnr"), unit="dB"),
     Metric("gap_dssim", "DSSIM: data range 2 − 1", 4, NEITHER, DIFFERENCE, ("dssim2", "dssim1")),
     # families of metrics without an entry of their own
-    Metric("ssim*", decimals=4, claimable=False),
-    Metric("lpips*", decimals=4, better=LOWER, claimable=False),
-    Metric("dssim*", decimals=4, better=LOWER, claimable=False),
-    Metric("gap_*", decimals=4, better=NEITHER, claimable=False),
-    Metric("motion_*", better=LOWER, claimable=False),
+    Metric("ssim*", decimals=4, source=EVALUATION, claimable=False),
+    Metric("lpips*", decimals=4, better=LOWER, source=EVALUATION, claimable=False),
+    Metric("dssim*", decimals=4, better=LOWER, source=EVALUATION, claimable=False),
+    Metric("gap_*", decimals=4, better=NEITHER, source=DIFFERENCE, claimable=False),
+    Metric("motion_*", better=LOWER, source=DIAGNOSTICS, claimable=False),
     Metric("loss*", better=LOWER, claimable=False),
-    Metric("epe*", better=LOWER, claimable=False),
-    Metric("system/*", claimable=False, deterministic=False),  # MLflow's system metrics sampler
+    Metric("epe*", better=LOWER, source=DIAGNOSTICS, claimable=False),
+    Metric("system/*", source=SYSTEM, claimable=False, deterministic=False),  # MLflow's system metrics sampler
 ):
     register(_m)

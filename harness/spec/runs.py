@@ -10,8 +10,8 @@ import json
 import shlex
 from dataclasses import dataclass, field
 
-from harness.spec.files import require
-from harness.spec.study import StudyScene, StudySpec, plural
+from harness.spec.study_files import require
+from harness.spec.study_schema import StudyScene, StudySpec, plural
 
 
 @dataclass(frozen=True)

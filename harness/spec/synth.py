@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ftgspp.errors import InputError
-from harness.spec.study import StudyScene
+from harness.spec.study_schema import StudyScene
 
 
 def validate_synth(scene: StudyScene) -> None:

@@ -8,6 +8,7 @@
   format and path), so runs can be grouped by dataset.
 - ``ui_link``: where the MLflow UI shows an experiment's training runs, as the study's view
   (``study_view``: the runs flat, with PSNR, SSIM and LPIPS columns); ``run_link`` one run;
+  ``browse_command`` the shell command a report gives for opening the store;
 - ``experiment_note``: the experiment's description (``mlflow.note.content``): the study's
   question and the command that fills it;
 - ``system_metrics``: MLflow's own ``SystemMetricsMonitor`` (``system/cpu_utilization_percentage``,
@@ -27,6 +28,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from harness.tracking.provenance import git_sha
+from harness.tracking.store import display_uri
 
 SYSTEM_METRICS_INTERVAL_S = 15.0
 SYNTH_GENERATOR = "ftgspp.data.synthetic.generate"
@@ -108,6 +110,8 @@ VIEW_TAG_PREFIX = "mlflow.sharedViewState."
 VIEW_KEY = "ftgspp-study"
 NOTE_TAG = "mlflow.note.content"  # the experiment's description in the UI
 TRAINING_VIEW = "workflowType=machine_learning"  # the training-runs view, not the GenAI one
+# the view's metric columns: registry names (tracking imports no other wing, so a test checks
+# each against harness/spec/metrics.py)
 VIEW_METRICS = ("psnr", "ssim1", "lpips_alex", "lpips_alex_01", "train_seconds")
 VIEW_TAGS = ("variant", "scene", "seed")
 
@@ -158,6 +162,12 @@ def ui_link(uri: str, experiment_id: str) -> str:
     """
     page = f"#/experiments/{experiment_id}/runs?{TRAINING_VIEW}&viewStateShareKey={VIEW_KEY}"
     return _ui_hint(uri, _ui_base(uri) + page)
+
+
+def browse_command(uri: str) -> str:
+    """The shell command that shows the store's runs: ``mlflow ui`` on a SQLite store (given as
+    ``display_uri`` writes it), else ``open`` on the URI."""
+    return f"mlflow ui --backend-store-uri {display_uri(uri)}" if uri.startswith("sqlite") else f"open {uri}"
 
 
 def run_link(uri: str, experiment_id: str, run_id: str) -> str:

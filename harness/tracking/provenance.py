@@ -6,12 +6,19 @@ given config (``ftgspp/**/*.py`` and ``conf/**/*.yaml``, but not ``ftgspp/bench/
 benchmarks never run inside training and do not decide a run's bits): two checkouts with the same
 fingerprint train the same bits in the same determinism domain, whatever else (harness,
 docs, reports) differs. Reports name it, and ``study check`` uses it to say why runs differ.
+
+``checkout_fingerprint`` is the fingerprint a report compares its runs with: this checkout's,
+unless ``FTGSPP_CHECKOUT_FINGERPRINT`` names another. Only ``scripts/report_parity.py`` sets it:
+a refactor that moves a trainer file changes the fingerprint by design, and the parity check
+asks what two harness versions write about the same runs for the same trainer. Runs always
+record the real fingerprint (``trainer_fingerprint``).
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
+import os
 import subprocess
 from pathlib import Path
 
@@ -52,6 +59,14 @@ def trainer_fingerprint(root: Path = REPO) -> str:
             if "__pycache__" not in rel and not any(rel[: len(skip)] == skip for skip in NOT_TRAINER):
                 h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()[:12]
+
+
+CHECKOUT_FINGERPRINT = "FTGSPP_CHECKOUT_FINGERPRINT"
+
+
+def checkout_fingerprint() -> str:
+    """The trainer fingerprint reports call "this checkout's" (see the module docstring)."""
+    return os.environ.get(CHECKOUT_FINGERPRINT) or trainer_fingerprint()
 
 
 def resolve_device(device: str) -> str:

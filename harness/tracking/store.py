@@ -48,6 +48,18 @@ def sqlite_path(uri: str) -> Path | None:
     return Path(uri[len("sqlite:///") :]) if uri.startswith("sqlite:///") else None
 
 
+def display_uri(uri: str) -> str:
+    """A SQLite URI inside the working directory as the relative ``sqlite:///mlflow.db`` a reader
+    can reuse; any other URI as given."""
+    path = sqlite_path(uri)
+    if path is None:
+        return uri
+    try:
+        return "sqlite:///" + path.relative_to(Path.cwd()).as_posix()
+    except ValueError:
+        return uri
+
+
 def store_exists(uri: str) -> bool:
     """False only for a SQLite store whose file does not exist yet (reading must not create it)."""
     path = sqlite_path(uri)
@@ -236,15 +248,22 @@ class Store:
             files.extend(self.artifact_files(run_id, info.path) if info.is_dir else [info.path])
         return files
 
-    def download_artifact(self, run_id: str, path: str, target: Path) -> Path:
-        """Copy the run's artifact file ``path`` to ``target`` (parents created)."""
+    def copy_artifacts(self, run_id: str, paths: list[str], folder: Path, under: str = "") -> list[Path]:
+        """Copy the run's artifact files ``paths`` into ``folder``, each at its path below ``under``
+        (``diagnostics/a/x.png`` with ``under="diagnostics"``: ``folder/a/x.png``; parents
+        created), without MLflow's download progress bar; returns the copies in order."""
         import shutil
         import tempfile
 
-        target.parent.mkdir(parents=True, exist_ok=True)
+        os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")  # else one bar per file
+        copies = []
         with tempfile.TemporaryDirectory() as tmp:
-            shutil.copyfile(self.call(self.client.download_artifacts, run_id, path, tmp, write=False), target)
-        return target
+            for path in paths:
+                target = folder / Path(path).relative_to(under)
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(self.call(self.client.download_artifacts, run_id, path, tmp, write=False), target)
+                copies.append(target)
+        return copies
 
     def status(self, run_id: str) -> str:
         """The run's status (RUNNING, FINISHED, FAILED, KILLED)."""

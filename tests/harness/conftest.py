@@ -37,9 +37,9 @@ def use_fakes(mp: pytest.MonkeyPatch) -> None:
 
     import harness.run.scenes
     import harness.run.training
-    import harness.spec.files
+    import harness.spec.study_files
 
-    mp.setattr(harness.spec.files, "STUDIES_DIR", TOY_STUDIES)
+    mp.setattr(harness.spec.study_files, "STUDIES_DIR", TOY_STUDIES)
     mp.setattr(harness.run.training, "run_training", fakes.fake_train)
     mp.setattr(harness.run.scenes, "_default_generator", lambda: fakes.fake_generate)
 

@@ -17,8 +17,8 @@ from scipy import stats
 
 from ftgspp.errors import InputError
 from harness.analysis import claim_tests as C, stats as S, verdicts as V
-from harness.spec.files import load_study
-from harness.spec.study import ClaimSpec, PaperClaim, PaperRow
+from harness.spec.study_files import load_study
+from harness.spec.study_schema import ClaimSpec, PaperClaim, PaperRow
 
 
 def runs(values: dict[tuple[str, str], np.ndarray], metric: str = "psnr") -> pd.DataFrame:
@@ -315,14 +315,14 @@ def test_claims_load_as_data(tmp_path: Path):
 ])
 def test_bad_claims_are_one_line_exit_2(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                         capsys: pytest.CaptureFixture[str], change: dict, words: str):
-    import harness.spec.files
+    import harness.spec.study_files
     from harness.cli.study import main
 
     root = _study_with(tmp_path, [{**GOOD, **change}])
     with pytest.raises(InputError, match=None) as err:
         load_study("toy", root)
     assert words in str(err.value)
-    monkeypatch.setattr(harness.spec.files, "STUDIES_DIR", root)
+    monkeypatch.setattr(harness.spec.study_files, "STUDIES_DIR", root)
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SystemExit) as exc:
         main(["report", "toy"])

@@ -14,7 +14,7 @@ from fakes import fake_generate, fake_train
 from harness.analysis import verdicts as V
 from harness.report.claims_table import claims_latex, claims_markdown
 from harness.report.index import StudyClaims, decide_all, index_markdown
-from harness.spec.study import ClaimSpec, PaperClaim, PaperRow
+from harness.spec.study_schema import ClaimSpec, PaperClaim, PaperRow
 
 MINI = {
     "name": "mini",
@@ -101,7 +101,7 @@ def test_forest_plot_draws_each_tested_claim_in_sesoi_units(tmp_path: Path):
 
 @pytest.mark.usefixtures("workdir")
 def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    import harness.spec.files
+    import harness.spec.study_files
     from harness.cli.study import main
     from harness.report.writer import write_report
     from harness.run.runner import run_study
@@ -111,7 +111,7 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     studies.mkdir()
     (studies / "mini.yaml").write_text(yaml.safe_dump(MINI))
     (studies / "later.yaml").write_text(yaml.safe_dump({**MINI, "name": "later", "claims": []}))
-    monkeypatch.setattr(harness.spec.files, "STUDIES_DIR", studies)
+    monkeypatch.setattr(harness.spec.study_files, "STUDIES_DIR", studies)
     run_study("mini", Selection(), studies_dir=studies, train_fn=fake_train, generate=fake_generate,
               echo=lambda s: None)
     write_report("mini", studies_dir=studies, reports_root=Path("reports"), echo=lambda s: None)

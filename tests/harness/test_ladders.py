@@ -12,9 +12,9 @@ import yaml
 from harness.analysis import ladder_breaks
 from harness.report import ladder_figures, sections
 from harness.report.results import ReportData
-from harness.spec.files import parse_study
 from harness.spec.runs import Selection
-from harness.spec.study import StudyScene
+from harness.spec.study_files import parse_study
+from harness.spec.study_schema import StudyScene
 
 # The base cell is a rung of both ladders; the rest are listed out of order on purpose.
 # ftgspp_no_gate is a component ablation run on lr x30 only (judged against ftgspp's base cell);

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import pytest
 
-from harness.spec.files import list_studies, load_study
 from harness.spec.plan import plan_runs
 from harness.spec.runs import Selection, expand
+from harness.spec.study_files import list_studies, load_study
 
 
 def composed(name: str, profile: str) -> dict[str, dict[str, str]]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from harness.run.progress import MEASURED_AFTER, Progress
-from harness.spec.study import ProfileSpec, fmt_duration
+from harness.spec.study_schema import ProfileSpec, fmt_duration
 
 
 def test_eta_comes_from_the_estimate_until_enough_runs_finished() -> None:

@@ -175,7 +175,7 @@ def test_per_scene_figure_is_written(tmp_path: Path) -> None:
 
 def _study():
     """A three-scene study whose scenes run their own seeds and variant subsets, as in ``PSNR``."""
-    from harness.spec.files import parse_study
+    from harness.spec.study_files import parse_study
 
     variants = {v: [f"budget={v.split('_')[0][1:]}", f"iterations={v.split('_')[1][1:]}"]
                 for v in ("b500_i1000", "b1000_i1000", "b2500_i1000", "b5000_i1000", "b5000_i300")}

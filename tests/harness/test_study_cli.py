@@ -27,8 +27,8 @@ def test_list_names_every_study_with_run_counts(capsys: pytest.CaptureFixture[st
     out = capsys.readouterr().out
     for name in ("secret1", "secret5", "lpips", "ablation", "speed_accuracy", "stability"):
         assert f"{name}: " in out
-    from harness.spec.files import load_study
     from harness.spec.runs import Selection, expand
+    from harness.spec.study_files import load_study
 
     n = len(expand(load_study("secret5"), Selection(profile="quick")))
     assert f"quick: {n} runs = 5 variants x 1 scene x 5 seeds" in out  # what `study run` would plan

@@ -49,7 +49,7 @@ SMOKE_VARIANT = {
 @pytest.mark.parametrize("study", sorted(SMOKE_VARIANT))
 def test_every_study_runs_and_reports_at_smoke_scale(study: str, workdir: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
-    from harness.spec.files import load_study
+    from harness.spec.study_files import load_study
 
     spec = load_study(study).profile("smoke")
     variant = SMOKE_VARIANT[study] or list(spec.variants)[-1]  # the most complete variant

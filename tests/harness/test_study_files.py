@@ -8,10 +8,9 @@ import pytest
 import yaml
 
 from ftgspp.errors import InputError
-from harness.spec.files import list_studies, load_study, parse_study
 from harness.spec.plan import plan_runs
 from harness.spec.runs import Selection, expand
-from harness.spec.study import TINY_SYNTH
+from harness.spec.study_files import TINY_SYNTH, list_studies, load_study, parse_study
 
 REQUIRED = {"secret1", "secret2", "secret3", "secret4", "secret5", "lpips", "ablation", "speed_accuracy", "stability"}
 
@@ -165,3 +164,51 @@ def test_a_rung_value_sets_its_override_or_generator_argument_in_one_place(tmp_p
     quick["scenes"][1] = {**base, "name": "lr3", "rungs": {"lr_scal": 3}}
     with pytest.raises(InputError, match="unknown ladder 'lr_scal'"):
         parse_study(raw, tmp_path / "toy.yaml")
+
+
+@pytest.mark.parametrize("change, at, words", [
+    (lambda raw: raw["table"].update(layout="pie_chart"), "table.layout",
+     "unknown table layout 'pie_chart' (use variants_x_scenes, metrics_x_scenes, variants_x_metrics)"),
+    (lambda raw: raw.update(claims=[{"id": "c", "claim": "x", "metric": "psnr", "test": "anova", "expect": "higher",
+                                     "a": "cc", "sesoi": 0.1, "sesoi_source": "s"}]), "claims[0].test",
+     "unknown comparison 'anova' (use mean, variance, interaction, contrast, decoupled)"),
+    (lambda raw: raw["profiles"].update(huge=raw["profiles"]["quick"]), "profiles.huge",
+     "unknown profile 'huge' (use quick, paper, smoke)"),
+    (lambda raw: raw["profiles"]["quick"]["overrides"].append({}), "profiles.quick.overrides[1]",
+     "must be a string, not a mapping"),
+])
+def test_a_value_outside_its_type_is_one_line_exit_2(change, at: str, words: str, tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    import harness.spec.study_files
+    from harness.cli.study import main
+
+    raw = _toy()
+    change(raw)
+    (tmp_path / "toy.yaml").write_text(yaml.safe_dump(raw))
+    with pytest.raises(InputError) as err:
+        load_study("toy", tmp_path)
+    assert str(err.value) == f"{tmp_path / 'toy.yaml'}: {at}: {words}"
+    monkeypatch.setattr(harness.spec.study_files, "STUDIES_DIR", tmp_path)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "toy"])
+    assert exc.value.code == 2
+    assert [line for line in capsys.readouterr().err.splitlines() if line.strip()] == [f"error: {err.value}"]
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_the_spec_is_typed_and_frozen(tmp_path: Path) -> None:
+    import dataclasses
+
+    from harness.spec.study_schema import ClaimGroup, Plot, TableLayout
+
+    study = parse_study(_toy(), tmp_path / "toy.yaml")
+    layout = study.table.layout
+    assert layout is TableLayout.variants_x_scenes and layout == "variants_x_scenes" and f"{layout}" == layout.value
+    assert study.plots == ("strip", "stability", "speed_accuracy") and all(isinstance(p, Plot) for p in study.plots)
+    assert ClaimGroup("paper") is ClaimGroup.paper
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        study.table.layout = TableLayout.metrics_x_scenes  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        study.profile("quick").scenes[0].seeds = 3  # type: ignore[misc]

@@ -159,9 +159,9 @@ def test_run_study_leaves_live_claims_to_their_owner(workdir: Path, store: Store
     from fakes import fake_generate, fake_train
 
     from harness.run.runner import run_study
-    from harness.spec.files import load_study
     from harness.spec.plan import plan_runs
     from harness.spec.runs import Selection, expand
+    from harness.spec.study_files import load_study
 
     sel = Selection(variants=["baseline"], seeds=2)
     seed1 = next(p for p in plan_runs(expand(load_study("toy", TOY_STUDIES), sel)) if p.spec.seed == 1)

@@ -11,7 +11,7 @@ import pytest
 from ftgspp.data.synthetic.presets import resolve_config
 from ftgspp.errors import InputError
 from harness.run.scenes import MARKER, ensure_scene
-from harness.spec.study import StudyScene
+from harness.spec.study_schema import StudyScene
 from harness.spec.synth import validate_synth
 
 

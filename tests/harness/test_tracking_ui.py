@@ -11,8 +11,8 @@ from conftest import TOY_STUDIES
 from fakes import fake_generate, fake_train
 
 from harness.run.runner import run_study
-from harness.spec.files import load_study
 from harness.spec.runs import Selection
+from harness.spec.study_files import load_study
 from harness.tracking.conventions import NOTE_TAG, VIEW_KEY, VIEW_TAG_PREFIX, run_link, ui_link
 from harness.tracking.records import open_store
 

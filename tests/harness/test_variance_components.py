@@ -10,7 +10,7 @@ import pytest
 
 from harness.analysis.variance import components
 from harness.report.sections import components_markdown
-from harness.spec.study import VarianceSpec
+from harness.spec.study_schema import VarianceSpec
 
 SPEC = VarianceSpec("psnr", "fixed", "free", ("hw_a", "hw_b", "hw_c"))
 

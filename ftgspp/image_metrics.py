@@ -8,7 +8,8 @@
 
 Images are torch tensors [H, W, 3] or [B, H, W, 3] in [0, 1]. ``evaluate_images`` averages
 per-frame values, as papers do. Metrics are looked up by name in ``METRICS``: a new metric
-is one function plus one entry.
+is one function plus one entry here, and one line in the harness's metric registry
+(``harness/spec/metrics.py``: its label, decimals and direction, referencing the entry here).
 
 Two SSIMs:
 
@@ -48,7 +49,7 @@ from torch import Tensor
 
 from ftgspp.errors import InputError
 
-log = logging.getLogger("ftgspp.metrics")
+log = logging.getLogger("ftgspp.image_metrics")
 
 SSIM_WINDOW = 11
 # Smallest image side each LPIPS backbone can take: AlexNet's second 3x3/2 max-pool needs
@@ -203,8 +204,8 @@ MetricFn = Callable[[Tensor, Tensor, Mapping[str, torch.nn.Module]], Tensor]
 
 
 @dataclass(frozen=True)
-class Metric:
-    """A named evaluator: ``fn`` plus what it needs and how it is labelled."""
+class ImageMetric:
+    """A named evaluator: ``fn`` plus what it needs and how the ``ftgspp metrics`` command describes it."""
 
     fn: MetricFn
     description: str
@@ -258,17 +259,17 @@ def _lpips(p: Tensor, g: Tensor, models: Mapping[str, torch.nn.Module], net: str
 
 
 _SSIM_DESC = "11x11 Gaussian window, sigma 1.5, data range {}"
-METRICS: dict[str, Metric] = {
-    "psnr": Metric(_psnr, "dB, data range 1"),
-    "psnr_cc": Metric(_psnr_aligned, "dB, after a least-squares affine colour map of the render onto the ground truth"),
-    "ssim1": Metric(partial(_ssim, data_range=1.0), _SSIM_DESC.format(1)),
-    "ssim2": Metric(partial(_ssim, data_range=2.0), _SSIM_DESC.format(2)),
-    "dssim1": Metric(partial(_dssim, data_range=1.0), "(1 - ssim1) / 2"),
-    "dssim2": Metric(partial(_dssim, data_range=2.0), "(1 - ssim2) / 2"),
-    "lpips_alex": Metric(partial(_lpips, net="alex", zero_one=False), "AlexNet, inputs mapped to [-1, 1] (correct)", "alex"),
-    "lpips_vgg": Metric(partial(_lpips, net="vgg", zero_one=False), "VGG16, inputs mapped to [-1, 1] (correct)", "vgg"),
-    "lpips_alex_01": Metric(partial(_lpips, net="alex", zero_one=True), "AlexNet, [0, 1] fed directly (3DGS convention)", "alex"),
-    "lpips_vgg_01": Metric(partial(_lpips, net="vgg", zero_one=True), "VGG16, [0, 1] fed directly (3DGS convention)", "vgg"),
+METRICS: dict[str, ImageMetric] = {
+    "psnr": ImageMetric(_psnr, "dB, data range 1"),
+    "psnr_cc": ImageMetric(_psnr_aligned, "dB, after a least-squares affine colour map of the render onto the ground truth"),
+    "ssim1": ImageMetric(partial(_ssim, data_range=1.0), _SSIM_DESC.format(1)),
+    "ssim2": ImageMetric(partial(_ssim, data_range=2.0), _SSIM_DESC.format(2)),
+    "dssim1": ImageMetric(partial(_dssim, data_range=1.0), "(1 - ssim1) / 2"),
+    "dssim2": ImageMetric(partial(_dssim, data_range=2.0), "(1 - ssim2) / 2"),
+    "lpips_alex": ImageMetric(partial(_lpips, net="alex", zero_one=False), "AlexNet, inputs mapped to [-1, 1] (correct)", "alex"),
+    "lpips_vgg": ImageMetric(partial(_lpips, net="vgg", zero_one=False), "VGG16, inputs mapped to [-1, 1] (correct)", "vgg"),
+    "lpips_alex_01": ImageMetric(partial(_lpips, net="alex", zero_one=True), "AlexNet, [0, 1] fed directly (3DGS convention)", "alex"),
+    "lpips_vgg_01": ImageMetric(partial(_lpips, net="vgg", zero_one=True), "VGG16, [0, 1] fed directly (3DGS convention)", "vgg"),
 }
 
 

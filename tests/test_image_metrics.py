@@ -20,7 +20,7 @@ from scipy.ndimage import gaussian_filter
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from ftgspp.errors import InputError
-from ftgspp.metrics import (
+from ftgspp.image_metrics import (
     METRICS,
     dssim,
     evaluate_images,
@@ -146,7 +146,7 @@ def test_evaluate_images_averages_per_frame_and_names_keys():
 
 
 def test_evaluate_images_blurs_each_frame_once_and_matches_ssim_and_dssim_bit_for_bit(monkeypatch):
-    import ftgspp.metrics as m
+    import ftgspp.image_metrics as m
 
     pairs = reference_pairs()[:2]
     pred = torch.from_numpy(np.stack([a for a, _ in pairs])).float()
@@ -213,6 +213,6 @@ def test_read_image_is_rgb(tmp_path: Path):
 
 
 def test_library_does_not_import_hydra_or_mlflow():
-    code = "import sys, ftgspp.metrics, ftgspp.lpips; print(any(m in sys.modules for m in ('hydra', 'mlflow')))"
+    code = "import sys, ftgspp.image_metrics, ftgspp.lpips; print(any(m in sys.modules for m in ('hydra', 'mlflow')))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
