@@ -42,15 +42,14 @@ train-quick: install
 
 # Every study's quick profile, then every report and reports/index.md (the page to open first).
 # Resumable: finished runs are skipped, so a second call with nothing missing only rewrites the
-# reports. Prints the plan and expected time first; SECONDS_PER_RUN is used until the store
-# has finished runs to time. Runs go JOBS at a time (default: each quick profile's `jobs`, 2;
-# BENCHMARKS.md has the --jobs 1 vs 2 measurement).
+# reports. Prints the plan and expected time first: the quick runs an hour measured for this
+# CPU's vector ISA (harness/spec/throughput.py, the README's table). Runs go JOBS at a time
+# (default: each quick profile's `jobs`, 2; BENCHMARKS.md has the --jobs 1 vs 2 measurement).
 STUDIES ?= $(sort $(filter-out _%,$(basename $(notdir $(wildcard studies/*.yaml)))))
 JOBS ?=
-SECONDS_PER_RUN ?= 40
 
 reports: install weights
-	$(PY) -m harness.cli.reports_plan --seconds-per-run $(SECONDS_PER_RUN) --jobs $(or $(JOBS),2) --todo .reports-todo
+	$(PY) -m harness.cli.reports_plan --jobs $(or $(JOBS),2) --todo .reports-todo
 	@set -e; for s in $$(cat .reports-todo); do case " $(STUDIES) " in *" $$s "*) \
 	  $(VENV)/bin/study run $$s --profile quick --rerun-stale $(if $(JOBS),--jobs $(JOBS));; esac; done
 	$(VENV)/bin/study report --all --profile quick --if-changed --out reports

@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
 
     root = Path(args.scene)
     if not (root / "gt" / "trajectories.json").is_file():
-        from ftgspp.data.synthetic.generate import generate
+        from ftgspp.data.synthetic.build import generate
 
         print(f"generating {args.preset} into {root} ...")
         generate(root, layout="dynerf", preset=args.preset, seed=0, overwrite=True)

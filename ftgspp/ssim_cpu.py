@@ -1,6 +1,6 @@
 """Training-loss SSIM on the CPU: separable 11-tap Gaussian filtering in Numba, hand-written backward.
 
-Computes exactly what ``metrics.ssim_same`` defines (zero-padded 'same' Gaussian window,
+Computes exactly what ``image_metrics.ssim_same`` defines (zero-padded 'same' Gaussian window,
 sigma 1.5, population covariances, mean over every pixel and channel), in float32, to float32
 rounding of the PyTorch version, without PyTorch's grouped-convolution autograd graph:
 

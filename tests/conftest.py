@@ -13,7 +13,7 @@ import pytest
 
 from ftgspp.config import DataConfig
 from ftgspp.data.load import load_scene
-from ftgspp.data.synthetic.generate import generate
+from ftgspp.data.synthetic.build import generate
 from ftgspp.lpips import LPIPS, fetch, load_all
 
 TINY = dict(width=64, height=48, n_frames=6, n_cameras=6)

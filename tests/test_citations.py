@@ -1,15 +1,18 @@
 """Every citation resolves: a repository path, a module named in double backticks, or a section
 sign cited in code, docs or study files points at something that exists.
 
-Three kinds of citation are checked, in every tracked text file but the generated reports and
+Four kinds of citation are checked, in every tracked text file but the generated reports and
 the history pages (which record what was true when they were written):
 
 - **paths** — ``ftgspp/render/cpu.py``, ``studies/secret5.yaml``, ``docs/design.md``: the file or
   folder exists (a path with a placeholder such as ``<name>``, ``NAME`` or ``*`` must match
   something as a glob); not in ``tests/``, whose paths are mostly the ones a test builds;
-- **modules** — ``harness.run.task.RunTask`` or, inside ``harness/``, a wing-relative
-  ``analysis.claim_tests``: the longest prefix that is a module of this repository exists and the
-  next name is defined at its top level (a class, function, assignment or import);
+- **modules** — ``harness.run.task.RunTask`` (in double backticks, in Markdown also in single
+  ones, or after ``python -m``) or, inside ``harness/``, a wing-relative ``analysis.claim_tests``:
+  the longest prefix that is a module of this repository exists, the next name is defined at its
+  top level (a class, function, assignment or import) and a name after a class is one of its
+  members;
+- **sibling files** — a bare ``render.py`` in a module's docstring is a file of the same folder;
 - **sections** — ``docs/design.md §4``: the document has a heading numbered 4.
 """
 
@@ -33,6 +36,9 @@ TEXT = (".py", ".md", ".yaml", ".yml", ".toml", ".sh", ".cfg")
 
 PATH = re.compile(rf"(?<![\w./<-])((?:{'|'.join(TOP)})/[\w./<>*{{}}-]*?(?:\.(?:{SUFFIXES})\b|/(?=[\s`'\")\],;:]|$)))")
 MODULE = re.compile(r"``((?:ftgspp|harness|" + "|".join(WINGS) + r")(?:\.\w+)+)(?:\(\))?``")
+MD_MODULE = re.compile(r"(?<!`)`((?:ftgspp|harness)(?:\.\w+)+)(?:\(\))?`(?!`)")  # Markdown's inline code
+RUN_MODULE = re.compile(r"python3? -m ((?:ftgspp|harness)(?:\.\w+)*)")
+SIBLING = re.compile(r"``([a-z_]\w*\.py)``")
 SECTION = re.compile(r"((?:docs/)?[\w-]+\.md)\)?`*\)? ?§ ?(\d+)")
 # the section sign and double backticks, spelled so that this file's planted citations are not its own
 SIGN, TICKS = "\u00a7", "`" * 2
@@ -94,7 +100,13 @@ def module_resolves(dotted: str) -> bool:
         if not module.is_file():
             continue
         rest = parts[n:]
-        return not rest or rest[0] in top_level_names(module)
+        names = top_level_names(module)
+        if not rest:
+            return True
+        if rest[0] not in names:
+            return False
+        members = {name.split(".", 1)[1] for name in names if name.startswith(rest[0] + ".")}
+        return len(rest) == 1 or not members or rest[1] in members  # a class's member, when it is a class
     return False
 
 
@@ -105,19 +117,26 @@ def section_exists(doc: str, number: str) -> bool:
     return re.search(rf"^#+ {number}[.\s]", path.read_text(), flags=re.M) is not None
 
 
-def broken_citations(paths: list[Path]) -> list[str]:
+def broken_citations(files: list[tuple[str, str]]) -> list[str]:
+    """Every citation of ``files`` ((path relative to the repository, text)) that does not resolve."""
     bad: list[str] = []
-    for path in paths:
-        rel = path.relative_to(ROOT).as_posix()
-        for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for rel, body in files:
+        folder = (ROOT / rel).parent
+        for lineno, line in enumerate(body.splitlines(), 1):
             for cited in PATH.findall(line) if not rel.startswith("tests/") else ():  # tests build paths
                 if not path_exists(cited):
                     bad.append(f"{rel}:{lineno}: path {cited}")
-            for dotted in MODULE.findall(line):
+            dotted_names = MODULE.findall(line) + RUN_MODULE.findall(line)
+            if rel.endswith(".md"):
+                dotted_names += MD_MODULE.findall(line)
+            for dotted in dotted_names:
                 if dotted.split(".")[0] in WINGS and not rel.startswith(("harness/", "docs/", "tests/harness/")):
                     continue  # ``run.x`` outside the harness is not a harness name
                 if not module_resolves(dotted):
                     bad.append(f"{rel}:{lineno}: module {dotted}")
+            if rel.endswith(".py") and not rel.startswith("tests/"):
+                bad += [f"{rel}:{lineno}: file {name}" for name in SIBLING.findall(line)
+                        if not (folder / name).is_file() and not (folder.parent / name).is_file()]
             for doc, number in SECTION.findall(line):
                 if not section_exists(doc, number):
                     bad.append(f"{rel}:{lineno}: section {doc} §{number}")
@@ -125,7 +144,7 @@ def broken_citations(paths: list[Path]) -> list[str]:
 
 
 def test_every_citation_resolves() -> None:
-    bad = broken_citations(tracked_files())
+    bad = broken_citations([(p.relative_to(ROOT).as_posix(), p.read_text()) for p in tracked_files()])
     assert not bad, "\n".join(bad)
 
 
@@ -135,24 +154,24 @@ def test_every_citation_resolves() -> None:
     (f"leases ({TICKS}harness.lease{TICKS})", "module harness.lease"),
     (f"each claim ({TICKS}analysis.claims{TICKS})", "module analysis.claims"),
     (f"{TICKS}harness.run.task.NoSuchThing{TICKS}", "module harness.run.task.NoSuchThing"),
+    (f"{TICKS}harness.run.task.RunTask.no_such_member{TICKS}", "module harness.run.task.RunTask.no_such_member"),
+    ("workers run python -m " + "ftgspp.data.synthetic_pool", "module ftgspp.data.synthetic_pool"),
+    (f"timed by {TICKS}no_such_timing.py{TICKS}", "file no_such_timing.py"),
     ("conventions: docs/design.md " + SIGN + "99", "section docs/design.md " + SIGN + "99"),
 ])
-def test_a_planted_bad_citation_fails(tmp_path: Path, text: str, kind: str) -> None:
-    planted = ROOT / "harness" / "_planted_citation.py"  # inside the harness: wing names count
-    try:
-        planted.write_text(f'"""{text}"""\n')
-        bad = broken_citations([planted])
-    finally:
-        planted.unlink()
-    assert bad == [f"harness/_planted_citation.py:1: {kind}"]
+def test_a_planted_bad_citation_fails(text: str, kind: str) -> None:
+    # cited from inside the harness: wing-relative names count there
+    assert broken_citations([("harness/run/_planted.py", f'"""{text}"""\n')]) == [f"harness/run/_planted.py:1: {kind}"]
+
+
+def test_markdown_inline_code_is_checked_too() -> None:
+    assert broken_citations([("docs/design.md", "read `harness.spec.files.load_study`")]) == \
+        ["docs/design.md:1: module harness.spec.files.load_study"]
+    assert broken_citations([("docs/design.md", "read `harness.spec.study_files.load_study`")]) == []
 
 
 def test_good_citations_pass() -> None:
-    planted = ROOT / "harness" / "_planted_good.py"
-    try:
-        planted.write_text('"""``harness.run.task.RunTask``, ``analysis.verdicts``, ftgspp/render/cpu.py,\n'
-                           'reports/<name>/runs.csv, docs/design.md ' + SIGN + '4, studies/secret5.yaml"""\n')
-        bad = broken_citations([planted])
-    finally:
-        planted.unlink()
-    assert bad == []
+    text = ('"""``harness.run.task.RunTask``, ``analysis.verdicts``, ftgspp/render/cpu.py, ``task.py``,\n'
+            "``harness.run.task.RunTask.__call__``, python -m ftgspp.data.synthetic,\n"
+            'reports/<name>/runs.csv, docs/design.md ' + SIGN + '4, studies/secret5.yaml"""\n')
+    assert broken_citations([("harness/run/_planted.py", text)]) == []

@@ -281,7 +281,7 @@ def test_run_diagnostics_writes_readable_outputs(tmp_path):
 
 
 def test_diagnose_cli_on_a_generated_scene(tmp_path, capsys):
-    from ftgspp.data.synthetic.generate import generate
+    from ftgspp.data.synthetic.build import generate
     from ftgspp.diagnostics.diagnose import main
 
     root = generate(tmp_path / "scene", layout="easyvolcap", preset="studio", seed=0,

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 PKG = Path(__file__).resolve().parents[1] / "ftgspp" / "diagnostics"
-MODULES = sorted(f"ftgspp.diagnostics.{p.stem}" for p in PKG.glob("*.py") if p.stem != "__init__")
+MODULES = sorted(f"ftgspp.diagnostics.{p.stem}" for p in PKG.glob("*.py") if p.stem not in ("__init__", "__main__"))
 
 
 def imports_of(path: Path) -> set[str]:
@@ -23,7 +23,7 @@ def imports_of(path: Path) -> set[str]:
             found |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             found.add(node.module)
-            found |= {f"{node.module}.{a.name}" for a in node.names}  # `from ftgspp.diagnostics import plots`
+            found |= {f"{node.module}.{a.name}" for a in node.names}  # `from ftgspp.diagnostics import figures`
     return {m for m in found if m in MODULES}
 
 
@@ -63,3 +63,8 @@ def test_diagnostics_modules_import_graph_is_acyclic():
 def test_each_diagnostics_module_imports_first_in_a_fresh_interpreter(module):
     res = subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-2000:]
+
+
+def test_the_package_runs_as_the_diagnose_command():
+    res = subprocess.run([sys.executable, "-m", "ftgspp.diagnostics", "--help"], capture_output=True, text=True)
+    assert res.returncode == 0 and "ftgspp diagnose" in res.stdout

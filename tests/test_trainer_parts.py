@@ -22,7 +22,7 @@ import ftgspp.trainer as trainer
 from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import DataConfig, LossConfig
 from ftgspp.data.load import load_scene
-from ftgspp.data.synthetic.generate import generate
+from ftgspp.data.synthetic.build import generate
 from ftgspp.errors import InputError
 from ftgspp.evaluate import evaluate
 from ftgspp.image_metrics import lpips_distance, ssim_same

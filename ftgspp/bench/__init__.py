@@ -6,14 +6,14 @@
     python -m ftgspp.bench render --n 20000 --width 256 --height 192
 
 ``render`` (``render.py``) builds one random scene of 3D Gaussians in front of a camera
-(``scene.py``), projects it once, and times the 2D rasterization of every available backend
+(``random_scene.py``), projects it once, and times the 2D rasterization of every available backend
 (``reference``, ``cpu``, and ``gsplat`` on CUDA; ``timing.py``) on the same projected
 Gaussians, forward and forward + backward, against a fixed dense yardstick
 (``yardstick.py``). With the ``cpu`` backend it also times the other stages of a training
 render against the PyTorch code they replace (``stages.py``) and the Numba compile time,
 cold and cached (``compile_probe.py``).
 
-``train`` (``train.py``) times whole training iterations of every backend through the real
+``train`` (``train_speed.py``) times whole training iterations of every backend through the real
 trainer, ``--breakdown`` per phase (``phases.py``); ``scale`` (``scale.py``) sweeps Gaussian
 counts x resolutions, one fresh process per point, and fits how the cost grows. ``cli.py``
 parses the command line.

@@ -59,6 +59,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def subcommands() -> list[str]:
+    """The names of ``ftgspp bench``'s subcommands, in the order the parser defines them."""
+    parser = build_parser()
+    (action,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))  # argparse has no public way
+    return list(action.choices)
+
+
 def _sizes(text: str) -> list[tuple[int, int]]:
     try:
         return [(int(w), int(h)) for w, h in (s.lower().split("x") for s in text.split(","))]

@@ -52,6 +52,11 @@ def widest(features: dict[str, bool]) -> str:
     return next((isa for isa in reversed(ORDER) if features.get(isa)), "sse2")
 
 
+def host_vector_isa() -> str:
+    """This host's widest vector ISA by name (``AVX-512``, ``AVX2``, ...; LLVM's host features)."""
+    return ISA_NAMES[widest(_host_features())]
+
+
 def host_isa() -> dict[str, Any]:
     """The host's LLVM CPU and vector ISA, the CPU target the Numba kernels are compiled for in
     this process, and torch's kernel set."""

@@ -1,6 +1,6 @@
 """``ftgspp bench render``: every rasterization backend and the yardstick, timed in one process.
 
-One random scene is projected once (``scene.py``); every usable backend (``timing.py``)
+One random scene is projected once (``random_scene.py``); every usable backend (``timing.py``)
 rasterizes it, forward and forward + backward, alternating within each repeat; figures are
 medians after warm-up. The dense yardstick (``yardstick.py``), the other stages of a ``cpu``
 render (``stages.py``) and the Numba compile time (``compile_probe.py``) are measured too.

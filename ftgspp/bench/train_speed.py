@@ -27,7 +27,7 @@ from ftgspp.bench.phases import PhaseTimer
 from ftgspp.bench.timing import usable_backends
 from ftgspp.config import DataConfig, TrainConfig
 from ftgspp.data.load import load_scene
-from ftgspp.data.synthetic.generate import generate
+from ftgspp.data.synthetic.build import generate
 
 
 def bench_config(out_dir: Path, scene_dir: Path, backend: str, iterations: int, budget: int, seed: int) -> TrainConfig:

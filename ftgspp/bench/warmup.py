@@ -15,6 +15,10 @@ from __future__ import annotations
 import sys
 import time
 
+# every kernel compiled cold: 55-59 s on an idle 2-core AMD EPYC with AVX-512 (BENCHMARKS.md,
+# `ftgspp bench render`'s compile probe); 147 s was seen on a loaded machine
+COLD_COMPILE_S = 57.0
+
 
 def _dispatchers() -> list:
     from ftgspp import colour_alignment, ssim_cpu
@@ -23,8 +27,8 @@ def _dispatchers() -> list:
 
     return [cpu_kernels.bin_gaussians, cpu_kernels.render_forward, cpu_kernels.render_backward,
             cpu_kernels.reduce_pair_grads, prepare_kernels.prepare_forward, prepare_kernels.prepare_backward,
-            ssim_cpu.ssim_forward, ssim_cpu.ssim_backward, colour_alignment.normal_equations, colour_alignment.cholesky_solve,
-            colour_alignment.apply_affine, relocate._add_visible]
+            ssim_cpu.ssim_forward, ssim_cpu.ssim_backward, colour_alignment.normal_equations,
+            colour_alignment.cholesky_solve, colour_alignment.apply_affine, relocate._add_visible]
 
 
 def kernels_cached() -> bool:

@@ -110,10 +110,18 @@ def read_dynerf(root: Path, drop_cameras: Sequence[str] = ()) -> SceneSource:
     )
 
 
+NPY_MAGIC = b"\x93NUMPY"  # the first bytes of every .npy file (numpy.lib.format)
+
+
 def _read_poses_bounds(path: Path) -> np.ndarray:
     """``[N, 17]`` float64, checked: shape, finite values, rotations, positive sizes and bounds."""
     if not path.is_file():
         raise InputError(path, "file not found")
+    with open(path, "rb") as f:
+        head = f.read(16)
+    if not head.startswith(NPY_MAGIC):  # np.load would try it as a pickle and say so
+        start = f"it starts with {head!r}" if head else "it is empty"
+        raise InputError(path, f"not a NumPy .npy file ({start}, not {NPY_MAGIC!r}); write it with numpy.save")
     try:
         pb = np.load(path, allow_pickle=False)
     except Exception as err:  # numpy raises several types for corrupt files

@@ -19,7 +19,8 @@ from scipy import stats
 
 AVERAGE = "average"
 KEY_COLUMNS = ["variant", "scene", "seed", "config_hash"]
-RUN_COLUMNS = ("scene_label", "status", "failure", "error", "run_id", "trainer_fingerprint", "command")
+# model_digest: a sha256 of the trained model's parameters (harness/run/training.py), where recorded
+RUN_COLUMNS = ("scene_label", "status", "failure", "error", "run_id", "trainer_fingerprint", "model_digest", "command")
 EXTRA_PARAMS = ("budget", "iterations", "lr.scale")
 # run tags that say which determinism domain a run's bits come from (ftgspp/runtime/determinism.py)
 DOMAIN_COLUMNS = {"domain": "determinism.id", "determinism": "determinism.mode",

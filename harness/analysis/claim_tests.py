@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -97,10 +98,16 @@ def compare_variances(a: np.ndarray, b: np.ndarray, sesoi: float, names: tuple[s
     equivalence when the bootstrap 90% CI lies within [1/sesoi, sesoi]."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     res = sps.levene(a, b, center="median")
-    boot = sps.bootstrap((a, b), _sd_ratio, n_resamples=BOOT_RESAMPLES, method="percentile", vectorized=True,
-                         confidence_level=CONFIDENCE, rng=np.random.default_rng(BOOT_SEED))
-    dist = boot.bootstrap_distribution
-    ci90 = (float(np.quantile(dist, 0.05)), float(np.quantile(dist, 0.95)))
+    # A resample that repeats one value has SD 0, so its ratio is infinite: a valid draw for the
+    # percentile CIs, but scipy's standard error of the distribution (not used) is then inf - inf.
+    # With 3 or 4 runs an arm some resamples repeat one value in both arms (0/0): the CI is then
+    # NaN, shown as such, and scipy's warning about it (worded for BCa) says nothing more.
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", sps.DegenerateDataWarning)
+        boot = sps.bootstrap((a, b), _sd_ratio, n_resamples=BOOT_RESAMPLES, method="percentile", vectorized=True,
+                             confidence_level=CONFIDENCE, rng=np.random.default_rng(BOOT_SEED))
+        dist = boot.bootstrap_distribution
+        ci90 = (float(np.quantile(dist, 0.05)), float(np.quantile(dist, 0.95)))
     p_tost = float(max((dist <= 1 / sesoi).mean(), (dist >= sesoi).mean()))  # bootstrap TOST on the ratio
     va, vb = a.var(ddof=1), b.var(ddof=1)
     na, nb = names

@@ -50,7 +50,8 @@ def tost_paired(d: np.ndarray, sesoi: float) -> float:
     from statsmodels.stats.weightstats import ttost_paired
 
     d = np.asarray(d, dtype=float)
-    return float(ttost_paired(d, np.zeros_like(d), -sesoi, sesoi)[0])
+    with np.errstate(divide="ignore", invalid="ignore"):  # identical differences (SD 0): t = ±inf, p 0 or 1
+        return float(ttost_paired(d, np.zeros_like(d), -sesoi, sesoi)[0])
 
 
 def tost_ind(a: np.ndarray, b: np.ndarray, sesoi: float) -> float:

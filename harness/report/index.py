@@ -1,14 +1,19 @@
 """``reports/index.md`` (``study index``): the page a reader opens first.
 
-It opens with the forest plot (every claim's effect in units of its smallest effect of
-interest, the paper's own effect marked), names the families its verdicts are corrected over
+It opens, when some of its runs were made by another trainer than this checkout's, with a
+note saying so: which trainers, the command that refreshes them (``make reports``) and its
+expected time on this machine (``report.currency``: the plan and rates of
+``harness.cli.reports_plan``); a current page has none. Then comes the forest plot (every
+claim's effect in units of its smallest effect of interest, the paper's own effect marked); the
+page names the families its verdicts are corrected over
 (``analysis.verdicts``: one family per claim group over every study, not per study), tallies
 the verdicts per family, and has one row per hypothesis: the paper's numbers and the paper's
 own evidence (is its difference distinguishable from its own spread?), the SESOI, our effect
 with its 95% CI, n and family-corrected p, and the verdict, linked to the study's report.
 Then the speed–accuracy and stability charts, stale reports and studies without runs. A study
 the store has no runs of is read from its report under the reports root (its ``runs.csv``). The
-page carries no timestamp, so the same store gives the same page.
+page carries no timestamp, so the same store gives the same page (a stale one's expected time
+is this machine's).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import pandas as pd
 from harness.analysis import verdicts as V
 from harness.report import USER_REPORTS
 from harness.report.claims_table import VERDICT_MARK, VERDICT_RULES, effect_text, sesoi_text, verdict_text
+from harness.report.currency import plan_frame, stale_note
 from harness.report.findings import write_findings
 from harness.report.fmt import p_text, text
 from harness.report.forest import forest_plot
@@ -31,6 +37,7 @@ from harness.report.results import collect, trainer_fingerprints
 from harness.spec.metrics import add_differences
 from harness.spec.study_files import list_studies, load_study
 from harness.spec.study_schema import CLAIM_GROUPS
+from harness.spec.throughput import MEASURED_JOBS, estimate
 from harness.tracking.provenance import checkout_fingerprint
 
 CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per scene (PSNR vs train time and"
@@ -69,11 +76,14 @@ def _row(r: pd.Series, study: str, report: str) -> str:
 
 
 def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], missing: list[str],
-                   current: str = "", forest: str = "") -> str:
-    """The page (module docstring); ``entries`` carry frames already decided over all studies."""
+                   current: str = "", forest: str = "", todo: tuple[int, str] = (0, "")) -> str:
+    """The page (module docstring); ``entries`` carry frames already decided over all studies;
+    ``todo``: the runs ``make reports`` would run and their expected time (``refresh``)."""
     frames = [e.frame.assign(study=e.study) for e in entries if not e.frame.empty]
     allf = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=[*V.COLUMNS, "study"])
+    prints = sorted({f for e in entries for f in e.fingerprints})
     lines = ["# The answers: every claim of the paper on our runs", "",
+             *(stale_note(prints, current, "make reports", *todo) if current else []),
              "Regenerate with `make reports` (or `study index --out reports`). Each claim names its smallest"
              " effect of interest (SESOI), fixed in its study file before the runs; the verdicts are corrected"
              " over the families below, across every study.", ""]
@@ -84,9 +94,12 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     lines += ["## Families", ""]
     for group, what in CLAIM_GROUPS.items():
         sub = allf[allf.group == group]
-        fam = next((f for f in sub.family if f), f"{group}: nothing tested")
+        fam = next((f for f in sub.family if f), "")
         counts = sub.verdict.value_counts()
         tally = ", ".join(f"{int(counts.get(v, 0))} {v}" for v in VERDICT_MARK if counts.get(v, 0))
+        if not fam:  # no claim of the group has the runs its tests need
+            lines.append(f"- **{group}** ({what}): no hypotheses tested yet" + (f" ({tally})." if tally else "."))
+            continue
         lines.append(f"- **{group}** ({what}): {fam} hypotheses, separately for the difference and the"
                      f" equivalence tests. {tally or 'no claims'}.")
     lines += ["", VERDICT_RULES, ""]
@@ -115,7 +128,6 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
         lines += ["## Studies without runs yet", "", *[f"- `{m}`: `study run {m} --profile quick`" for m in missing],
                   ""]
     codes = sorted({c[:7] for e in entries for c in e.code.split(", ") if c})
-    prints = sorted({f for e in entries for f in e.fingerprints})
     same = (" (the commits differ outside the trainer)" if len(codes) > 1 else "") if len(prints) == 1 else ""
     lines += [f"Runs made by code {', '.join(codes) or 'unknown'}, trainer fingerprint"
               f" {', '.join(f'`{f}`' for f in prints) or 'unknown'}{same}."
@@ -174,6 +186,15 @@ def committed_study_claims(name: str, root: Path, studies_dir: Path | None = Non
                        n_done, code, tuple(trainer_fingerprints(df)), source="committed report")
 
 
+def refresh(entries: list[StudyClaims], current: str, studies_dir: Path | None = None) -> tuple[int, str]:
+    """What ``make reports`` would run when some runs are not ``current``'s (its plan:
+    ``currency.plan_frame``), and how long that takes here; (0, "") when all are current."""
+    if {f for e in entries for f in e.fingerprints} <= {current}:
+        return 0, ""
+    runs = int(plan_frame(studies_dir=studies_dir, trainer=current).to_run.sum())
+    return runs, estimate(runs, MEASURED_JOBS).text()
+
+
 def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | None = None,
                        echo: Callable[[str], None] = print) -> Path:
     """Write ``reports_root/index.md`` over every study in ``studies_dir``; return its path.
@@ -188,6 +209,8 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
         entry = collect_study_claims(name, studies_dir) or committed_study_claims(name, root, studies_dir)
         (entries.append(entry) if entry is not None else missing.append(name))
     entries = decide_all(entries)
+    current = checkout_fingerprint()
+    todo = refresh(entries, current, studies_dir)
     with_runs = {e.study for e in entries}
     charts = [(caption, f"{study}/{png}") for study, png, caption in CHARTS
               if study in with_runs and (root / study / png).is_file()]
@@ -197,7 +220,7 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
         allf.to_csv(root / "claims.csv", index=False)
     forest = forest_plot(allf, root / FOREST) if len(allf) else None
     path = root / "index.md"
-    path.write_text(index_markdown(entries, charts, missing, checkout_fingerprint(), FOREST if forest else ""))
+    path.write_text(index_markdown(entries, charts, missing, current, FOREST if forest else "", todo))
     write_findings(root, studies_dir)  # every number FINDINGS.md may cite (report.findings)
     n = sum(len(e.frame) for e in entries)
     echo(f"index: {n} claims over {len(entries)} studies with runs ({len(missing)} without) written to {path}")

@@ -77,7 +77,7 @@ def speed_accuracy_plot(sa: pd.DataFrame, chosen: pd.Series | None, title: str, 
 
 
 def speed_accuracy_scenes_plot(sa: pd.DataFrame, chosen: pd.DataFrame, title: str, path: Path) -> Path:
-    """``speed_accuracy_plot`` with one row per scene of ``sa`` (``speed_accuracy.per_scene``);
+    """``speed_accuracy_plot`` with one row per scene of ``sa`` (``analysis.speed_accuracy_scenes.per_scene``);
     each scene's Pareto fronts are its own, its row of ``chosen`` (``smallest_per_scene``) starred."""
     scenes = list(dict.fromkeys(sa.scene))
     fig, axes = plt.subplots(len(scenes), 2, figsize=(11, 4.0 * len(scenes)), sharey="row", squeeze=False,

@@ -40,6 +40,7 @@ class ReportData:
     parents: list[RunRecord]
     store: Store | None
     chosen: dict[Any, RunRecord | None] = field(default_factory=dict)
+    recorded: Recorded | None = None  # the runs come from a committed report's runs.csv (report.committed)
 
     @property
     def baseline(self) -> str:
@@ -64,7 +65,36 @@ class ReportData:
 
     def code_versions(self) -> list[str]:
         """The git commits recorded by the runs that count."""
+        if self.recorded is not None:
+            return list(self.recorded.code)
         return sorted({rec.tags.get("git_sha", "") for rec in self.chosen.values() if rec is not None} - {""})
+
+    def parent_ids(self) -> list[str]:
+        """The study-level (parent) runs' ids, shortened to 8 characters."""
+        if self.recorded is not None:
+            return list(self.recorded.parents)
+        return [p.run_id[:8] for p in self.parents]
+
+    def invocations(self) -> list[str]:
+        """The ``study run`` commands that made the reported profile's runs, each once."""
+        if self.recorded is not None:
+            return list(self.recorded.invocations)
+        return list(dict.fromkeys(p.tags.get("command", "") for p in self.parents
+                                  if p.tags.get("profile") == self.sel.profile and p.tags.get("command")))
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """What a committed report recorded of its runs beyond its ``runs.csv``: the provenance its
+    page names (``report.committed`` reads it back when the tracking store has none of them)."""
+
+    folder: Path  # reports/NAME: runs.csv, index.md, diagnostics/
+    code: tuple[str, ...] = ()  # git commits ("code at ...")
+    uri: str = ""  # the MLflow store and experiment that held the runs
+    experiment: str = ""
+    parents: tuple[str, ...] = ()  # parent run ids (8 characters)
+    invocations: tuple[str, ...] = ()
+    diagnostic_seeds: tuple[tuple[str, str, int], ...] = ()  # (variant, scene, seed) whose figures it shows
 
 
 def trainer_fingerprints(df: pd.DataFrame) -> list[str]:
@@ -76,7 +106,8 @@ def trainer_fingerprints(df: pd.DataFrame) -> list[str]:
 
 
 def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]) -> pd.DataFrame:
-    """One row per planned run with its status, failure, error, metrics and key params."""
+    """One row per planned run with its status, failure, error, provenance (trainer fingerprint,
+    model digest, determinism domain), metrics and key params."""
     rows = []
     for p in planned:
         rec = chosen.get(p.key)
@@ -85,11 +116,12 @@ def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]
         for name in EXTRA_PARAMS:
             row[name] = float(p.params[name]) if name in p.params else math.nan
         if rec is None:
-            row.update(status="MISSING", failure="", error="", run_id="", trainer_fingerprint="",
+            row.update(status="MISSING", failure="", error="", run_id="", trainer_fingerprint="", model_digest="",
                        command=standalone_command(p.spec))
         else:
             row.update(status=rec.status, failure=rec.failure, error=rec.error, run_id=rec.run_id,
                        trainer_fingerprint=rec.tags.get("trainer_fingerprint", ""),
+                       model_digest=rec.tags.get("model_digest", ""),
                        command=standalone_command(p.spec, rec.tags.get("determinism.torch_threads", "")))
             row.update({col: rec.tags.get(tag, "") for col, tag in DOMAIN_COLUMNS.items()})
             if rec.status == "FINISHED":

@@ -22,7 +22,7 @@ from pathlib import Path
 import pandas as pd
 
 from harness.analysis import aggregate, ladder_breaks, speed_accuracy_scenes, variance, verdicts
-from harness.report import claims_table, ladder_figures, plots, tables
+from harness.report import claims_table, committed, ladder_figures, plots, tables
 from harness.report.fmt import fixed
 from harness.report.results import ReportData
 from harness.spec import metrics as registry
@@ -250,7 +250,10 @@ def _diagnostic_files(data: ReportData, runs: pd.DataFrame, patterns: list[str])
 
 def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[Path]]]:
     """Copy the diagnostics of the lowest finished seed with figures per (variant, scene) into
-    ``out/diagnostics/<variant>/<scene>/``; returns (variant, scene, seed, files)."""
+    ``out/diagnostics/<variant>/<scene>/``; returns (variant, scene, seed, files). A report from
+    committed runs reuses the committed report's files (``report.committed``)."""
+    if data.recorded is not None:
+        return committed.diagnostics(data, out)
     if data.store is None:
         return []
     patterns = list(data.study.diagnostics) or ["*"]

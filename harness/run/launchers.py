@@ -6,7 +6,10 @@
   to ``joblib``);
 - ``joblib``: ``--jobs`` worker processes on this machine;
 - ``local``: submitit's local executor (``conf/hydra/launcher/local.yaml``), one process per
-  run, all started at once - a dry run of the SLURM path on one machine;
+  run - a dry run of the SLURM path on one machine. Its executor starts every job it is given
+  at once, with no cap, so ``launch`` hands it one job at a time from ``jobs`` threads: at most
+  ``jobs`` runs are alive at once (``study run`` without ``--jobs``: ``local_slots``, one per
+  core and as many as fit in the available memory);
 - ``slurm``: submitit's SLURM executor (``conf/hydra/launcher/slurm.yaml``: partition, time
   limit, GPUs, CPUs, memory, array parallelism, site setup lines); one job array.
 
@@ -22,11 +25,17 @@ nodes cannot share a SQLite file safely; they need ``mlflow server``), or a
 ``hydra.launcher.KEY=VALUE`` override the chosen launcher does not have. Those overrides
 (``split_launcher_args``) configure the launcher, not the runs: they are not part of any
 run's config or hash.
+
+Every launch logs through ``conf/hydra/{hydra_logging,job_logging}/study.yaml`` (``run.runlog``):
+Hydra's launcher lines go to ``launcher.log`` in the sweep folder, a run's log records to its
+own log file, and only warnings to the terminal.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
+import threading
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -91,9 +100,23 @@ def effective_launcher(launcher: str, jobs: int) -> str:
     return "joblib" if launcher == "basic" and jobs > 1 else launcher
 
 
+RUN_MEMORY_GB = 1.2  # a quick run's trainer at its peak (about 1.1 GB seen; peak RSS 0.85-1.0 GB, BENCHMARKS history)
+
+
+def local_slots(cores: int | None = None, available_gb: float | None = None) -> int:
+    """How many runs ``--launcher local`` runs at once when ``--jobs`` is not given: one per
+    core, and no more than fit in the memory available now at ``RUN_MEMORY_GB`` a run."""
+    if available_gb is None:
+        import psutil
+
+        available_gb = psutil.virtual_memory().available / 2**30
+    return max(1, min(cores or os.cpu_count() or 1, int(available_gb / RUN_MEMORY_GB)))
+
+
 def launcher_overrides(launcher: str, sweep_dir: Path, jobs: int, job_name: str) -> list[str]:
-    """Hydra-level overrides selecting the launcher and where jobs write."""
-    overrides = [f"hydra.sweep.dir={sweep_dir.as_posix()}", f"hydra.job.name={job_name}"]
+    """Hydra-level overrides selecting the launcher, where jobs write and how they log."""
+    overrides = [f"hydra.sweep.dir={sweep_dir.as_posix()}", f"hydra.job.name={job_name}",
+                 "hydra/hydra_logging=study", "hydra/job_logging=study"]
     launcher = effective_launcher(launcher, jobs)
     overrides.append(f"hydra/launcher={launcher}")
     if launcher == "joblib":
@@ -117,7 +140,8 @@ def launch(
     The launcher composes each job's config in full, creates its output folder
     ``<sweep_dir>/<job subdir>`` with ``.hydra/{config,overrides}.yaml`` and calls
     ``task(cfg)``; ``HydraConfig.get()`` inside the task gives the job's number and output
-    folder. Exceptions the task lets through come back in the ``JobReturn``.
+    folder. Exceptions the task lets through come back in the ``JobReturn``. Under ``local``,
+    at most ``jobs`` run at once (``_at_most``).
     """
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -136,5 +160,40 @@ def launch(
         # no callbacks are configured: Hydra's public no-op Callback stands in for its dispatcher
         context = HydraContext(config_loader=loader, callbacks=Callback())
         plugin = Plugins.instance().instantiate_launcher(hydra_context=context, task_function=task, config=master)
+        sweep_dir.mkdir(parents=True, exist_ok=True)  # launcher.log's folder
+        if effective_launcher(launcher, jobs) == "local" and len(job_overrides) > jobs:
+            return _at_most(jobs, plugin.launch, [list(o) for o in job_overrides])
         return list(plugin.launch([list(o) for o in job_overrides], initial_job_idx=0))
+
+
+def _at_most(jobs: int, launch_one: Callable[..., Sequence[Any]], job_overrides: list[list[str]]) -> list[Any]:
+    """Launch every job by itself (``launch_one([overrides], initial_job_idx=i)``, a job array
+    of one, which returns when the job has ended), from ``jobs`` threads: at most ``jobs`` run at
+    once, the next starting as one ends. Returns in order; if a launch raised (a job died without
+    returning), the first error is raised once every job has ended, as the array's launch would."""
+    returns: list[Any] = [None] * len(job_overrides)
+    errors: list[BaseException] = []
+    queue = iter(range(len(job_overrides)))
+    lock = threading.Lock()
+
+    def work() -> None:
+        while True:
+            with lock:
+                i = next(queue, None)
+            if i is None:
+                return
+            try:
+                returns[i] = launch_one([job_overrides[i]], initial_job_idx=i)[0]
+            except Exception as exc:
+                errors.append(exc)
+
+    # daemon threads: Ctrl-C ends this process at once (a terminal's Ctrl-C reaches the jobs too)
+    threads = [threading.Thread(target=work, name=f"local-slot-{k}", daemon=True) for k in range(jobs)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        raise errors[0]
+    return returns
 

@@ -3,9 +3,14 @@
 Every finished run appends one JSON line to ``<sweep_dir>/progress.jsonl`` under a file
 lock and reads back how many runs are done, so each worker can print the study's
 progress and an ETA. Until ``MEASURED_AFTER`` runs are done the ETA is the study's own
-estimate (its profile's ``run_seconds``) less the time spent: the first runs of an install also
+estimate (``expected``: the plan's figure) less the time spent: the first runs of an install also
 compile the kernels, and an ETA from them alone says hours where minutes are left. Then it is
 the measured rate (wall time so far / runs done x runs left).
+
+``expected`` is what ``study run`` prints before it starts: for the quick profile, the quick runs
+an hour measured on a host of this one's kind (its vector ISA, ``spec.throughput``) and the
+kernels' compile time when their cache is cold (``ftgspp.bench.warmup.COLD_COMPILE_S``); for
+another profile, the study file's own figure (``ProfileSpec.estimate``).
 """
 
 from __future__ import annotations
@@ -13,9 +18,14 @@ from __future__ import annotations
 import fcntl
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from ftgspp.bench.warmup import COLD_COMPILE_S
+from harness.spec import throughput
+from harness.spec.study_schema import ProfileSpec, fmt_duration, jobs_speedup, plural
 
 MEASURED_AFTER = 4  # runs done before the ETA trusts the measured rate
 
@@ -69,3 +79,19 @@ def record(path: Path, label: str, status: str, total: int, started_at: float,
             fcntl.flock(fh, fcntl.LOCK_UN)
     failed = sum(r["status"] != "FINISHED" for r in rows)
     return Progress(len(rows), failed, total, time.time() - started_at, expected_total_s)
+
+
+def expected(profile: ProfileSpec, n_runs: int, jobs: int, compile_kernels: bool) -> tuple[str, float]:
+    """(the plan's expected time, the runs' expected seconds): for the quick profile from the
+    quick runs an hour measured on this host's kind (its vector ISA; ``spec.throughput``), plus the
+    kernels' compile when their cache is cold (and a word when the machine is busy now); for another
+    profile from its own figure."""
+    if profile.name != "quick":
+        return profile.estimate(n_runs, jobs), n_runs * profile.run_seconds / jobs_speedup(jobs)
+    est = throughput.estimate(n_runs, jobs)
+    extra = f" + ~{fmt_duration(COLD_COMPILE_S)} to compile the kernels" if compile_kernels else ""
+    total = est.seconds + COLD_COMPILE_S * compile_kernels
+    load, cores = os.getloadavg()[0], os.cpu_count() or 1
+    busy = f"; this machine is busy now (load average {load:.1f} on {cores} cores): expect longer" * (load >= cores)
+    return (f"~{fmt_duration(total)} on an idle 2-core {est.isa} machine, this one's kind ({plural(n_runs, 'run')}"
+            f"{extra}; {est.rate_text()}){busy}"), est.seconds

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import subprocess
 import sys
 import time
@@ -27,8 +28,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from ftgspp.bench import warmup
 from ftgspp.errors import InputError
-from harness.run import lease
+from harness.run import lease, progress
 from harness.run.launchers import check_launcher, check_launcher_args, launch, split_launcher_args
 from harness.run.prewarm import Prewarm, prewarm
 from harness.run.scenes import Generator, ensure_scene, scene_lock
@@ -36,7 +38,7 @@ from harness.run.task import JobInfo, RunTask, TrainFn
 from harness.spec.plan import PlannedRun, plan_runs
 from harness.spec.runs import Selection, command_line, describe_runs, expand
 from harness.spec.study_files import load_study
-from harness.spec.study_schema import StudySpec, jobs_speedup
+from harness.spec.study_schema import StudySpec, fmt_duration
 from harness.tracking.conventions import experiment_tags, scene_dataset, source_tags, ui_link
 from harness.tracking.provenance import git_sha, trainer_fingerprint
 from harness.tracking.records import RunRecord, load_runs, tracking_target
@@ -84,11 +86,10 @@ WARMUP = (sys.executable, "-m", "ftgspp.bench.warmup")
 def warm_kernels(echo: Callable[[str], None]) -> None:
     """Compile the cpu kernels once, with a line saying so, when Numba's cache is cold: else
     every worker would compile them at once, silently, for minutes."""
-    from ftgspp.bench.warmup import kernels_cached
-
-    if kernels_cached():
+    if warmup.kernels_cached():
         return
-    echo("compiling the CPU kernels (once per install or code change: ~1 min on an idle 2-core machine) ...")
+    echo("compiling the CPU kernels (once per install or code change:"
+         f" ~{fmt_duration(warmup.COLD_COMPILE_S)} on an idle 2-core machine, longer under load) ...")
     t0 = time.time()
     proc = subprocess.run(list(WARMUP), capture_output=True, text=True)
     if proc.returncode != 0:  # the runs will compile (or fail) themselves and say why
@@ -165,15 +166,19 @@ def run_study(
     if not todo:
         if warm is not None:
             warm.wait()  # nothing to run: the warm-up ends before the process does (seconds)
+        echo(f"browse: {ui_link(inv.uri, exp_id)}")
         return outcome
-    profile = inv.study.profile(inv.sel.profile)
-    echo(f"expected: {profile.estimate(len(todo), jobs)}")
-    _prepare(inv, todo, generate, train_fn, warm, echo)  # scenes, kernels, warm workers
+    local_kernels = train_fn is None and inv.launcher != "slurm"  # workers here train with the cpu kernels
+    text, runs_s = progress.expected(inv.study.profile(inv.sel.profile), len(todo), jobs,
+                                     local_kernels and not warmup.kernels_cached())
+    echo(f"expected: {text}")
+    _prepare(inv, todo, generate, local_kernels, warm, echo)  # scenes, kernels, warm workers
     parent_id, stamp = _open_parent(store, exp_id, inv, todo)
     outcome.parent_run_id = parent_id
     # absolute: submitit's folder lives under it and jobs on other nodes must find it
     sweep_dir = (inv.out_root / name / f"{stamp}-{parent_id[:8]}").resolve()
-    task = _task(inv, exp_id, parent_id, todo, sweep_dir, profile.run_seconds, train_fn, trainer)
+    echo(f"outputs: {os.path.relpath(sweep_dir)}/VARIANT/SCENE/SEED/, each run's log there: study_{name}.log")
+    task = _task(inv, exp_id, parent_id, todo, sweep_dir, runs_s, train_fn, trainer)
     _launch_runs(inv, store, task, todo, sweep_dir, outcome)
     _finish(inv, store, exp_id, outcome, echo)
     return outcome
@@ -239,14 +244,14 @@ def _announce(inv: Invocation, todo: list[PlannedRun], elsewhere: list[RunRecord
         echo(f"  running elsewhere: {rec.tags.get('mlflow.runName', rec.key)} ({lease.describe(rec)})")
 
 
-def _prepare(inv: Invocation, todo: list[PlannedRun], generate: Generator | None, train_fn: TrainFn | None,
+def _prepare(inv: Invocation, todo: list[PlannedRun], generate: Generator | None, local_kernels: bool,
              warm: Prewarm | None, echo: Callable[[str], None]) -> None:
     """Make the missing synthetic scenes, compile the cpu kernels once and wait for the warm
     workers: all before the parent run exists, so an interrupt here leaves nothing RUNNING."""
     for scene in {p.spec.scene.name: p.spec.scene for p in todo}.values():
         with scene_lock(scene):  # another invocation may be generating it right now
             ensure_scene(scene, generate, echo)
-    if train_fn is None and inv.launcher != "slurm":  # workers on this machine train with the cpu kernels
+    if local_kernels:
         warm_kernels(echo)
     if warm is not None:
         warm.wait()
@@ -284,7 +289,7 @@ def _open_parent(store: Store, exp_id: str, inv: Invocation, todo: list[PlannedR
     return parent_id, stamp
 
 
-def _task(inv: Invocation, exp_id: str, parent_id: str, todo: list[PlannedRun], sweep_dir: Path, run_seconds: float,
+def _task(inv: Invocation, exp_id: str, parent_id: str, todo: list[PlannedRun], sweep_dir: Path, runs_s: float,
           train_fn: TrainFn | None, trainer: str) -> RunTask:
     """What each job runs: claim, train and record its child run of ``parent_id``."""
     return RunTask(
@@ -295,7 +300,7 @@ def _task(inv: Invocation, exp_id: str, parent_id: str, todo: list[PlannedRun], 
               for p in todo],
         progress_path=str(sweep_dir / "progress.jsonl"),
         started_at=time.time(),
-        expected_total_s=len(todo) * run_seconds / jobs_speedup(inv.jobs),
+        expected_total_s=runs_s,
         train_fn=train_fn,
         lease_s=inv.lease_s,
         command=inv.command,

@@ -1,7 +1,7 @@
 """Synthetic study scenes, generated on demand into ``data/synth/<name>``.
 
 A scene with ``synth: {preset, seed, layout, ...}`` is written by
-``ftgspp.data.synthetic.generate.generate(out, layout, preset, seed, **extra)`` the first time a
+``ftgspp.data.synthetic.build.generate(out, layout, preset, seed, **extra)`` the first time a
 study needs it. A marker file records the arguments; a folder whose marker differs (the
 study file changed) is regenerated, one with the same marker is reused, and so is a folder
 without a marker that ``ftgspp synth`` wrote with the same arguments. Generation
@@ -44,7 +44,7 @@ def _generated_with(out: Path, args: dict[str, Any]) -> bool:
 
 
 def _default_generator() -> Generator:
-    from ftgspp.data.synthetic.generate import generate
+    from ftgspp.data.synthetic.build import generate
 
     return generate
 

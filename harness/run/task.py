@@ -20,7 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from ftgspp.errors import InputError
 from ftgspp.tracker import RunResult
-from harness.run import lease, progress
+from harness.run import lease, progress, runlog
 from harness.spec.confighash import config_hash, flatten_config
 from harness.spec.plan import resolve
 from harness.tracking.conventions import scene_dataset, source_tags, system_metrics
@@ -119,11 +119,15 @@ class RunTask:
             t0 = time.time()
             result: RunResult | None = None
             error: Exception | None = None
+            log = out_dir / f"{hydra_cfg.job.name}.log"  # also Hydra's job log file (run.runlog)
             try:
-                result = (self.train_fn or _default_train)(cfg, out_dir, tracker)
+                with runlog.capture(log, job.label, f"job #{hydra_cfg.job.num}: {' '.join(hydra_cfg.overrides.task)}"):
+                    result = (self.train_fn or _default_train)(cfg, out_dir, tracker)
             except Exception as exc:  # any crash is recorded, never lost
                 error = exc
                 (out_dir / "error.txt").write_text(traceback.format_exc())
+                with open(log, "a") as fh:
+                    fh.write(traceback.format_exc())
                 tracker.log_artifact(out_dir / "error.txt")
             except BaseException:  # Ctrl-C / SystemExit: the run was killed
                 tracker.flush()
@@ -134,7 +138,7 @@ class RunTask:
             beat.stop()
             if not self._close_run(store, tracker, result, status, extra, seconds, cfg.iterations, out_dir):
                 status, extra = "LOST", {"failure": "lease_lost", "error": "taken over by another invocation"}
-        self._report(job, status, extra, result, seconds)
+        self._report(job, status, extra, result, seconds, log)
         return {"label": job.label, "run_id": tracker.run_id, "status": status, **extra, "seconds": seconds}
 
     def _open_run(self, store: Store, claim: lease.Claim, job: JobInfo, cfg: Any, dcfg: DictConfig,
@@ -166,7 +170,7 @@ class RunTask:
         config_file.write_text(OmegaConf.to_yaml(dcfg, resolve=True))
         tracker.log_artifact(config_file)
         took = f", took over {', '.join(r[:8] for r in claim.took_over)}" if claim.took_over else ""
-        print(f"[run] {job.label}: started (child run {tracker.run_id[:8]}{took}, outputs in {out_dir})", flush=True)
+        print(f"[run] {job.label}: started (child run {tracker.run_id[:8]}{took})", flush=True)
         return tracker
 
     @staticmethod
@@ -193,12 +197,12 @@ class RunTask:
         return True
 
     def _report(self, job: JobInfo, status: str, extra: dict[str, str], result: RunResult | None,
-                seconds: float) -> None:
-        """One progress line for the run and the whole study."""
+                seconds: float, log: Path) -> None:
+        """One progress line for the run and the whole study (a failed run's names its log)."""
         prog = progress.record(Path(self.progress_path), job.label, status, len(self.jobs), self.started_at,
                                self.expected_total_s)
         psnr = result.metrics.get("psnr") if result is not None else None
-        what = status if not extra else f"{status} ({extra['failure']}: {extra['error'][:120]})"
+        what = status if not extra else f"{status} ({extra['failure']}: {extra['error'][:120]}; log: {log})"
         psnr_txt = f" psnr={psnr:.2f}" if isinstance(psnr, (int, float)) else ""
         print(f"[{prog.done}/{prog.total}] {job.label}: {what}{psnr_txt} in {progress.fmt_seconds(seconds)}"
               f" | {prog.line()}", flush=True)

@@ -4,7 +4,7 @@ A study file is plain data (see ``studies/secret5.yaml``): a question, named var
 of Hydra override strings, one of them the baseline), per-profile scenes, seed counts,
 overrides, expected runtime and the exact command, plus what the report shows. Scenes are
 either synthetic (``synth: {preset, seed, layout, n_cameras, color_shift, ...}``: arguments of
-``ftgspp.data.synthetic.generate``, generated on demand into ``data/synth/<name>``) or given
+``ftgspp.data.synthetic.build.generate``, generated on demand into ``data/synth/<name>``) or given
 by overrides (``data.path=${oc.env:DYNERF_ROOT}/...``). A study may list ``claims:`` (the
 paper's statements as data, ``ClaimSpec``) and ``variance_components:`` (``VarianceSpec``).
 
@@ -195,8 +195,10 @@ class ProfileSpec:
     command: str = ""
     baseline: str = ""  # default: the study's
     jobs: int = 1  # parallel runs when `study run` is given no --jobs
-    run_seconds: float = 0.0  # wall seconds per run, one at a time, on ``machine`` (0: unknown)
-    machine: str = "an idle 2-core CPU machine (EPYC-AVX2, BENCHMARKS.md)"
+    # wall seconds per run, one at a time, on ``machine`` (0: unknown); `study run` estimates a quick
+    # profile from the rate measured for its host's kind instead (run.progress.expected, spec.throughput)
+    run_seconds: float = 0.0
+    machine: str = "an idle 2-core CPU machine (the study file's own figure)"
     ladders: dict[str, Ladder] = field(default_factory=dict)  # what the scenes' rungs set
 
     def estimate(self, n_runs: int, jobs: int) -> str:

@@ -7,10 +7,11 @@
   of the scene, source = the synthetic generator's arguments or the data folder, profile =
   format and path), so runs can be grouped by dataset.
 - ``ui_link``: where the MLflow UI shows an experiment's training runs, as the study's view
-  (``study_view``: the runs flat, with PSNR, SSIM and LPIPS columns); ``run_link`` one run;
-  ``browse_command`` the shell command a report gives for opening the store;
-- ``experiment_note``: the experiment's description (``mlflow.note.content``): the study's
-  question and the command that fills it;
+  (``study_view``: the runs grouped by variant, with the variant, scene and seed columns
+  first, then PSNR, SSIM, LPIPS and training time); ``run_link`` one run; ``browse_command``
+  the shell command a report gives for opening the store;
+- ``experiment_tags``: the experiment's description (``mlflow.note.content``: the study's
+  question and the commands that fill and report it, in plain text) and that view;
 - ``system_metrics``: MLflow's own ``SystemMetricsMonitor`` (``system/cpu_utilization_percentage``,
   ``system/system_memory_usage_megabytes``, ...) sampling every 15 s; a no-op when psutil
   is missing.
@@ -31,7 +32,7 @@ from harness.tracking.provenance import git_sha
 from harness.tracking.store import display_uri
 
 SYSTEM_METRICS_INTERVAL_S = 15.0
-SYNTH_GENERATOR = "ftgspp.data.synthetic.generate"
+SYNTH_GENERATOR = "ftgspp.data.synthetic.build.generate"
 
 
 def source_tags(command: str) -> dict[str, str]:
@@ -103,41 +104,62 @@ def system_metrics(run_id: str, tracking_uri: str) -> Iterator[None]:
             monitor.finish()
 
 
-# The MLflow UI (3.x) restores an experiment page's columns, filter and order from an
+# The MLflow UI (3.x) restores an experiment page's filter, order, columns and grouping from an
 # experiment tag ``mlflow.sharedViewState.<key>`` (JSON) when the URL carries
-# ``viewStateShareKey=<key>``: how its "Share" button works. The study sets one such view.
+# ``viewStateShareKey=<key>``: how its "Share" button works. The study sets one such view. The
+# URL itself can carry only the filter and order (``searchFilter``, ``orderByKey``, ...), and
+# with any of them the UI ignores the shared view; columns and grouping exist only in the view.
 VIEW_TAG_PREFIX = "mlflow.sharedViewState."
 VIEW_KEY = "ftgspp-study"
-NOTE_TAG = "mlflow.note.content"  # the experiment's description in the UI
+NOTE_TAG = "mlflow.note.content"  # the description: markdown on the experiment page, raw text in the lists
 TRAINING_VIEW = "workflowType=machine_learning"  # the training-runs view, not the GenAI one
 # the view's metric columns: registry names (tracking imports no other wing, so a test checks
 # each against harness/spec/metrics.py)
 VIEW_METRICS = ("psnr", "ssim1", "lpips_alex", "lpips_alex_01", "train_seconds")
-VIEW_TAGS = ("variant", "scene", "seed")
+# the study's key tags, the view's first columns, with their widths in pixels ("dispatch_baseline" fits)
+VIEW_TAGS = {"variant": 150, "scene": 90, "seed": 60}
+VIEW_GROUP_TAG = "variant"
 
 
 def _column(kind: str, name: str) -> str:
-    return f"{kind}.`{name}`"  # the UI's canonical column key
+    return f"{kind}.`{name}`"  # the UI's canonical column key, also its table's column id
 
 
 def study_view(metrics: tuple[str, ...] = VIEW_METRICS) -> dict[str, Any]:
-    """The view state ``ui_link`` opens: every training run flat (the filter leaves out the
-    invocations' parent runs, which carry no ``variant`` tag), the study's key tags and the
-    headline metrics as columns, newest first."""
+    """The view state ``ui_link`` opens: the training runs (the filter leaves out the
+    invocations' parent runs, which carry no ``variant`` tag) grouped by variant (each group's
+    row shows its runs' mean), in the order they started (a study's variants in its file's
+    order), with the study's key tags as the first columns and then the headline metrics.
+
+    ``selectedColumns`` says which columns show, ``columnOrder`` where (the UI would otherwise
+    put every metric before every tag), ``columnWidths`` how wide (pixels); ``groupBy`` is the
+    UI's ``RunsGroupByConfig``.
+    """
+    columns = [*(_column("tags", t) for t in VIEW_TAGS), *(_column("metrics", m) for m in metrics)]
     return {
-        "searchFilter": "tags.variant LIKE '%'",
+        "searchFilter": f"tags.{VIEW_GROUP_TAG} LIKE '%'",
         "orderByKey": _column("attributes", "start_time"),
-        "orderByAsc": False,
-        "selectedColumns": [*(_column("tags", t) for t in VIEW_TAGS), *(_column("metrics", m) for m in metrics)],
+        "orderByAsc": True,
+        "selectedColumns": columns,
+        "columnOrder": columns,
+        "columnWidths": {_column("tags", t): px for t, px in VIEW_TAGS.items()},
+        "groupBy": {"aggregateFunction": "average", "groupByKeys": [{"mode": "tag", "groupByData": VIEW_GROUP_TAG}]},
     }
+
+
+def experiment_note(question: str, command: str, report: str) -> str:
+    """The experiment's description: plain text with no markdown syntax, because the
+    experiment page renders it as markdown while the home page's and the experiments list's
+    Description column show it verbatim (one line, whitespace collapsed)."""
+    return (f"{' '.join(question.split())}\n\nRuns: {command} \N{EM DASH} report (tables, plots, verdicts):"
+            f" {report} \N{EM DASH} one run per (variant, scene, seed).")
 
 
 def experiment_tags(question: str, command: str, report: str) -> dict[str, str]:
     """The tags that describe a study's experiment in the UI: its description (question, the
-    command that fills it, where its report goes) and the study view ``ui_link`` opens."""
-    note = (f"**{question.strip()}**\n\nRuns are added by `{command}`; the report (tables, plots,"
-            f" verdicts) is written by `{report}`. Every run is one (variant, scene, seed) of the study.")
-    return {NOTE_TAG: note, VIEW_TAG_PREFIX + VIEW_KEY: json.dumps(study_view())}
+    command that fills it, the command that reports it) and the study view ``ui_link`` opens."""
+    return {NOTE_TAG: experiment_note(question, command, report),
+            VIEW_TAG_PREFIX + VIEW_KEY: json.dumps(study_view())}
 
 
 def _ui_base(uri: str) -> str:
@@ -158,7 +180,8 @@ def ui_link(uri: str, experiment_id: str) -> str:
     MLflow 3.17's UI opens every experiment in the GenAI view unless the browser chose
     "Model training" before (it ignores ``mlflow.experimentKind`` there); the
     ``workflowType`` parameter selects the training-runs view, ``viewStateShareKey`` the
-    columns and filter of ``study_view``.
+    filter, columns and grouping of ``study_view`` (the link must carry no filter or order of
+    its own, or the UI ignores the view).
     """
     page = f"#/experiments/{experiment_id}/runs?{TRAINING_VIEW}&viewStateShareKey={VIEW_KEY}"
     return _ui_hint(uri, _ui_base(uri) + page)

@@ -127,6 +127,7 @@ class Store:
         from mlflow.tracking import MlflowClient
 
         logging.getLogger("alembic").setLevel(logging.WARNING)
+        logging.getLogger("mlflow.store.db.utils").setLevel(logging.WARNING)  # "Creating initial ... tables"
         self.uri = uri
         self.retry_s = retry_s
         db = sqlite_path(uri)

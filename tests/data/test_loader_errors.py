@@ -48,7 +48,11 @@ DYNERF_BAD = {
         {},
         "poses_bounds.npy",
     ),
-    "poses not npy": (lambda r: _corrupt_bytes(r / "poses_bounds.npy"), {}, "poses_bounds.npy"),
+    "poses not npy": (lambda r: _corrupt_bytes(r / "poses_bounds.npy"), {},
+                      "poses_bounds.npy: not a NumPy .npy file \\(it starts with b'this is not what'"),
+    "poses a text file": (lambda r: np.savetxt(r / "poses_bounds.npy", _poses(r)), {},
+                          "poses_bounds.npy: not a NumPy .npy file \\(it starts with b'-?[0-9]"),
+    "poses empty": (lambda r: (r / "poses_bounds.npy").write_bytes(b""), {}, "not a NumPy .npy file \\(it is empty"),
     "poses not a rotation": (
         lambda r: np.save(r / "poses_bounds.npy", _poses(r) * np.r_[[2.0] * 3, [1.0] * 14]),
         {},
@@ -239,6 +243,19 @@ def test_immersive_bad_input_raises_one_line_naming_the_field(tmp_path, case):
     with pytest.raises(InputError, match=pattern) as err:
         load_scene(DataConfig(path=str(root), format="immersive"))
     assert "\n" not in str(err.value)
+
+
+def test_a_text_file_named_npy_exits_2_with_one_true_line_from_the_cli(tmp_path):
+    root = fx.write_dynerf(tmp_path / "s", n_frames=6)
+    np.savetxt(root / "poses_bounds.npy", _poses(root))  # numpy.savetxt where numpy.save was meant
+    repo = Path(__file__).resolve().parents[2]
+    run = subprocess.run([sys.executable, "-m", "harness.cli.ftgspp_cmd", "train", f"data.path={root}",
+                          "profile=smoke"], cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(repo)},
+                         capture_output=True, text=True, timeout=300)
+    lines = [ln for ln in run.stderr.splitlines() if ln.strip()]
+    assert run.returncode == 2 and len(lines) == 1, run.stderr
+    assert "poses_bounds.npy: not a NumPy .npy file (it starts with b'" in lines[0]
+    assert "pickle" not in lines[0]
 
 
 def test_malformed_models_json_exits_2_with_one_line_from_the_cli(tmp_path):

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ftgspp.data.synthetic.generate import generate, main
+from ftgspp.data.synthetic.build import generate, main
 from ftgspp.data.synthetic.pool import map_in_processes
 from ftgspp.errors import InputError
 
@@ -303,6 +303,15 @@ def test_worker_processes_keep_the_order_and_report_a_failure():
     assert map_in_processes(math.sqrt, [(4.0,), (9.0,), (16.0,)], workers=2) == [2.0, 3.0, 4.0]
     with pytest.raises(RuntimeError, match="scene-rendering worker failed: ValueError: math domain error"):
         map_in_processes(math.sqrt, [(4.0,), (-1.0,)], workers=2)
+
+
+def test_worker_processes_import_ftgspp_from_the_parents_tree():
+    import ftgspp
+
+    paths = map_in_processes(os.getenv, [("PYTHONPATH",), ("PYTHONPATH",)], workers=2)
+    first = Path(paths[0].split(os.pathsep)[0])
+    assert (first / "ftgspp" / "__init__.py").is_file()  # the repository, not its ftgspp/ folder
+    assert first.resolve() == Path(ftgspp.__file__).resolve().parents[1]
 
 
 def test_module_run_renders_cameras_in_worker_processes(tmp_path):

@@ -18,7 +18,7 @@ import torch
 from ftgspp.config import DataConfig, TrainConfig
 from ftgspp.data.immersive import read_models
 from ftgspp.data.load import detect_format, load_scene
-from ftgspp.data.synthetic.generate import generate, main
+from ftgspp.data.synthetic.build import generate, main
 from ftgspp.data.synthetic.layouts import ENERF_OUTDOOR_D, LENS_LAYOUTS, make_lens
 from ftgspp.data.synthetic.rig import make_rig
 from ftgspp.errors import InputError

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ftgspp.data.synthetic.generate import generate, main
+from ftgspp.data.synthetic.build import generate, main
 from ftgspp.data.synthetic.presets import PRESETS, resolve_config
 
 SMALL = dict(layout="easyvolcap", n_cameras=3, width=80, height=60)

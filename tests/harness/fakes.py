@@ -7,14 +7,19 @@ variant. Input errors are the real trainer's: the configuration goes through the
 validation (``Relocator``, so ``strategy.relocation=teleport`` raises ``InputError``),
 ``lr.scale >= 100`` diverges, and a file ``crash_seed<N>`` in the working directory makes
 the run with that seed crash once (the file is consumed). ``FAKE_TRAIN_SLEEP`` (seconds)
-makes every run take that long.
+makes every run take that long; ``FAKE_TRAIN_SPANS`` (a file) gets a line ``start end`` (time
+stamps) per run; ``FAKE_TRAIN_NOISE=1`` makes a run say what the real trainer's runs say
+(``noise``).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import os
+import sys
 import time
+import warnings
 from pathlib import Path
 
 from ftgspp.config import TrainConfig
@@ -43,7 +48,13 @@ def fake_train(cfg: TrainConfig, out_dir: Path, tracker: Tracker) -> RunResult:
         tracker.log_metrics({"loss": 1.0}, step=0)
         tracker.log_metrics({"loss": math.nan}, step=1)
         return RunResult("FAILED", {"train_seconds": 0.1}, failure="diverged", out_dir=out_dir)
+    start = time.time()
     time.sleep(float(os.environ.get("FAKE_TRAIN_SLEEP", "0")))
+    if os.environ.get("FAKE_TRAIN_NOISE"):
+        noise(cfg)
+    if spans := os.environ.get("FAKE_TRAIN_SPANS"):
+        with open(spans, "a") as fh:  # one write, appended: runs in other processes add theirs
+            fh.write(f"{start} {time.time()}\n")
     for step in range(LOSS_STEPS):
         tracker.log_metrics({"loss": 1.0 / (step + 1), "l1": 0.5 / (step + 1)}, step=step)
     diag = Path(out_dir) / "diagnostics"
@@ -68,6 +79,23 @@ def fake_train(cfg: TrainConfig, out_dir: Path, tracker: Tracker) -> RunResult:
         "n_gaussians": float(cfg.budget),
     }
     return RunResult("FINISHED", metrics, out_dir=out_dir)
+
+
+def noise(cfg: TrainConfig) -> None:
+    """What a real run says besides its result: the initialiser's INFO records (in this process),
+    a training child process's output as it copies it to stderr (an INFO and a WARNING record and
+    a progress bar), a NumPy RuntimeWarning, and a warning record of this process."""
+    import numpy as np
+
+    log = logging.getLogger("ftgspp.init")
+    log.info("init: frame 0: 9 views, 10 pairs, 522 matches, 521 epipolar inliers, 467 points")
+    sys.stderr.write("[2026-11-27 12:00:00,000][ftgspp.init][INFO] - init: frame 10: 9 views (child)\n"
+                     "train:  50%|#####     | 15/30\rtrain: 100%|##########| 30/30\n"
+                     f"[2026-11-27 12:00:01,000][ftgspp.evaluate][WARNING] - child warning, seed {cfg.seed}\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        np.log(np.zeros(1))  # RuntimeWarning: divide by zero encountered in log
+    logging.getLogger("ftgspp.evaluate").warning("in-process warning, seed %d", cfg.seed)
 
 
 def fake_generate(out: Path, layout: str, preset: str, seed: int, **extra: object) -> Path:

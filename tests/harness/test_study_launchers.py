@@ -7,6 +7,8 @@ import os
 import pickle
 import subprocess
 import sys
+import threading
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -14,7 +16,7 @@ import pytest
 from conftest import HERE, TOY_STUDIES, prepare_workdir
 from fakes import LOSS_STEPS, fake_generate, fake_train
 
-from harness.run.launchers import launcher_overrides
+from harness.run.launchers import _at_most, launcher_overrides, local_slots
 from harness.run.runner import run_study
 from harness.run.task import JobInfo, RunTask
 from harness.spec.runs import Selection
@@ -77,7 +79,7 @@ def test_submitit_local_runs_the_study_with_the_same_metrics_as_basic(workdir: P
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")]))
     sel = Selection(variants=["baseline", "cc"], seeds=2)
     kw = dict(studies_dir=TOY_STUDIES, train_fn=fake_train, generate=fake_generate, echo=lambda s: None)
-    out = run_study("toy", sel, launcher="local", **kw)
+    out = run_study("toy", sel, launcher="local", jobs=2, **kw)
     assert (out.launched, out.finished, out.failed) == (4, 4, 0)
     local = _finished()
     assert len(local) == 4
@@ -98,6 +100,59 @@ def test_submitit_local_runs_the_study_with_the_same_metrics_as_basic(workdir: P
     assert basic.keys() == local.keys()
     for key in basic:
         assert basic[key].metrics == local[key].metrics, key
+
+
+def test_the_local_launcher_starts_a_job_as_one_ends_never_more_than_its_cap() -> None:
+    alive, most, lock = [0], [0], threading.Lock()
+
+    def launch_one(overrides: list[list[str]], initial_job_idx: int) -> list[str]:
+        with lock:
+            alive[0] += 1
+            most[0] = max(most[0], alive[0])
+        time.sleep(0.02 * (initial_job_idx % 3 + 1))  # jobs of different lengths
+        with lock:
+            alive[0] -= 1
+        return [f"{initial_job_idx}:{overrides[0][0]}"]
+
+    jobs = [[f"seed={i}"] for i in range(7)]
+    assert _at_most(3, launch_one, jobs) == [f"{i}:seed={i}" for i in range(7)]  # in order
+    assert most[0] == 3
+
+    def dies(overrides: list[list[str]], initial_job_idx: int) -> list[str]:
+        if initial_job_idx == 1:
+            raise RuntimeError("job 1 died")  # as submitit raises for a job that did not return
+        return launch_one(overrides, initial_job_idx)
+
+    with pytest.raises(RuntimeError, match="job 1 died"):
+        _at_most(2, dies, jobs)
+    assert alive[0] == 0, "every other job ran to its end first"
+
+
+def test_local_slots_are_one_per_core_as_memory_allows() -> None:
+    assert local_slots(cores=2, available_gb=22.0) == 2
+    assert local_slots(cores=16, available_gb=6.0) == 5  # 1.2 GB a run
+    assert local_slots(cores=4, available_gb=0.5) == 1
+    assert local_slots() >= 1
+
+
+@pytest.mark.slow
+def test_submitit_local_runs_at_most_jobs_trainers_at_once(workdir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """4 runs through the local launcher with ``jobs=2``: never more than 2 train at once, and 2 do."""
+    spans = workdir / "spans.txt"
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("FAKE_TRAIN_SLEEP", "3")
+    monkeypatch.setenv("FAKE_TRAIN_SPANS", str(spans))
+    out = run_study("toy", Selection(variants=["baseline"], seeds=4), launcher="local", jobs=2,
+                    studies_dir=TOY_STUDIES, train_fn=fake_train, generate=fake_generate, echo=lambda s: None)
+    assert (out.launched, out.finished, out.failed) == (4, 4, 0)
+    # (time, +1 a start / -1 an end); sorted, an end comes before a start at the same instant
+    events = sorted((float(t), d) for line in spans.read_text().splitlines() for t, d in zip(line.split(), (1, -1)))
+    assert len(events) == 8
+    alive, most = 0, 0
+    for _, d in events:
+        alive += d
+        most = max(most, alive)
+    assert most == 2
 
 
 @pytest.mark.slow

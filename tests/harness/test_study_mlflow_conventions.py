@@ -40,7 +40,7 @@ def test_study_runs_follow_mlflow_conventions(workdir: Path, monkeypatch: pytest
     ds = inp.dataset
     synth = {"layout": "dynerf", "preset": "studio", "seed": 0}
     assert ds.name == "easy" and ds.source_type == "synthetic"
-    assert json.loads(ds.source) == {"generator": "ftgspp.data.synthetic.generate", "args": synth}
+    assert json.loads(ds.source) == {"generator": "ftgspp.data.synthetic.build.generate", "args": synth}
     assert ds.digest == hashlib.sha256(json.dumps(synth, sort_keys=True).encode()).hexdigest()[:16]
     assert json.loads(ds.profile)["format"] == "dynerf"
     assert {t.key: t.value for t in inp.tags} == {"mlflow.data.context": "train"}

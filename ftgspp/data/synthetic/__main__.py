@@ -1,5 +1,5 @@
-"""``python -m ftgspp.data.synthetic``: the ``ftgspp synth`` command (``generate.main``)."""
+"""``python -m ftgspp.data.synthetic``: the ``ftgspp synth`` command (``build.main``)."""
 
-from ftgspp.data.synthetic.generate import main
+from ftgspp.data.synthetic.build import main
 
 raise SystemExit(main())

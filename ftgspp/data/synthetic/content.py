@@ -148,7 +148,7 @@ def render_camera(content: SceneContent, cam: Camera, cfg: SynthConfig, transfor
     ``gains [F, 3]``: the camera's exposure drift per frame (``exposure_gains``), applied first.
 
     ``rays(s)`` is the camera's world ray grid ``[H*s, W*s, 3]`` (unit camera-z) through a
-    lens (``synthetic_layouts.Lens.rays``); default: the pinhole ``pixel_rays``.
+    lens (``layouts.Lens.rays``); default: the pinhole ``pixel_rays``.
     """
     H, W, s = cam.height, cam.width, cfg.supersample
     lens = rays is not None

@@ -55,7 +55,7 @@ def map_in_processes(fn: Callable[..., Any], tasks: list[tuple], workers: int) -
 def _import_path() -> str:
     """The folder holding this ``ftgspp`` first, then the inherited ``PYTHONPATH``: a child
     imports the same code as this process, and nothing else is added to its path."""
-    root = str(Path(__file__).resolve().parents[2])
+    root = str(Path(__file__).resolve().parents[3])  # ftgspp/data/synthetic/pool.py -> the repository
     return os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH", "")])])
 
 

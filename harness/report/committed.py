@@ -1,0 +1,159 @@
+"""A study's report from its committed runs, for a checkout whose tracking store has none of them.
+
+``study report NAME`` reads the study's runs from the tracking store; when the store has no
+finished run of the reported selection, ``from_committed`` reads them from the committed report
+instead (``reports/NAME/runs.csv``, floats exactly as written) and everything its page recorded
+beyond that file (``Recorded``): the code version, MLflow store, experiment, parent runs and
+invocations (its "Tracking" section) and which seed's diagnostics it shows. Diagnostic figures
+are artifacts of the runs in the store that made them, so ``diagnostics`` reuses the committed
+report's ``diagnostics/`` files; a cell whose files are not there is named on the page and on
+the console. From the same runs and the same harness the page comes out as committed, but
+for its last line, which says when, and that it was made from the committed runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import fnmatch
+import re
+import shutil
+from pathlib import Path
+from typing import Callable
+
+import pandas as pd
+
+from ftgspp.errors import InputError
+from harness.analysis.aggregate import DOMAIN_COLUMNS, KEY_COLUMNS, RUN_COLUMNS
+from harness.analysis.reproduction import read_reference
+from harness.report.results import Recorded, ReportData
+from harness.spec.metrics import add_differences
+from harness.spec.runs import command_line
+from harness.tracking.store import display_uri
+
+TRACKING = re.compile(r"^MLflow store `([^`]*)`, experiment `([^`]*)`; code at (.*?); trainer fingerprint", re.M)
+PARENTS = re.compile(r"^Parent runs: (.*)\. Browse them with:$", re.M)
+INVOCATIONS = re.compile(r"^Invocations that produced these runs:\n\n((?:- `.*`\n)+)", re.M)
+DIAGNOSTIC = re.compile(r"^### (.+) / (.+) \(seed (\d+)\)$", re.M)
+
+
+def read_recorded(folder: Path) -> Recorded:
+    """What the committed page ``folder/index.md`` names of its runs (empty fields without one)."""
+    page = (folder / "index.md").read_text() if (folder / "index.md").is_file() else ""
+    tracking, parents = TRACKING.search(page), PARENTS.search(page)
+    code = tracking.group(3).split(", ") if tracking and tracking.group(3) != "unknown" else []
+    ids = parents.group(1).split(", ") if parents and parents.group(1) != "none" else []
+    invocations = INVOCATIONS.search(page)
+    commands = [line[3:-1] for line in invocations.group(1).splitlines()] if invocations else []
+    seeds = [(v, s, int(seed)) for v, s, seed in DIAGNOSTIC.findall(page.partition("\n## Diagnostics\n")[2])]
+    return Recorded(folder, code=tuple(code), uri=tracking.group(1) if tracking else "",
+                    experiment=tracking.group(2) if tracking else "", parents=tuple(ids),
+                    invocations=tuple(commands), diagnostic_seeds=tuple(seeds))
+
+
+def read_runs(path: Path) -> pd.DataFrame:
+    """A committed ``runs.csv`` as the per-run frame ``report.results`` builds: provenance as
+    text, empty text cells empty (not NaN) except a missing run's domain."""
+    df = read_reference(str(path))
+    for col in [c for c in RUN_COLUMNS if c in df]:
+        df[col] = df[col].astype(object).fillna("").astype(str)
+    ran = df.status != "MISSING"
+    for col in [c for c in DOMAIN_COLUMNS if c in df]:
+        df[col] = df[col].astype(object)
+        df.loc[ran, col] = df.loc[ran, col].fillna("")
+    return df
+
+
+def from_committed(data: ReportData, folder: Path, echo: Callable[[str], None] = print) -> ReportData:
+    """``data`` (a selection the store has no finished run of) with its runs read from the
+    committed report in ``folder``: the planned runs it holds, the rest missing.
+    ``InputError`` when it holds none of them."""
+    name, path = data.study.name, folder / "runs.csv"
+    where = f"no finished runs in {data.experiment} at {display_uri(data.uri)}"
+    if not path.is_file():
+        raise InputError(f"study report {name}", f"{where}, and no committed runs ({path}) to report from"
+                                                 f" (run them first: {command_line(name, data.sel)}); nothing written")
+    runs = read_runs(path)
+    planned = {key: i for i, key in enumerate(p.key for p in data.planned)}
+    order = [planned.get(key) for key in runs[KEY_COLUMNS].itertuples(index=False, name=None)]
+    runs = runs.assign(_order=order)[[i is not None for i in order]]
+    if runs.empty:
+        raise InputError(f"study report {name}", f"{where}, and {path} holds none of the {len(planned)} runs"
+                                                 f" of {command_line(name, data.sel)} (another profile, or the study's"
+                                                 " configs changed since: other config hashes); nothing written")
+    missing = data.df.assign(_order=range(len(data.df)))  # row i is planned run i (results.runs_frame)
+    missing = missing[~missing._order.isin(set(runs._order))]
+    df = add_differences(pd.concat([runs, missing]) if len(missing) else runs)
+    df = df.sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
+    recorded = read_recorded(folder)
+    lacks = _lacking(recorded)
+    data = dataclasses.replace(data, df=df, uri=recorded.uri, experiment=recorded.experiment, parents=[],
+                               store=None, chosen={}, recorded=recorded)
+    echo(f"{name}: the tracking store has none of its runs; reporting from the committed runs of"
+         f" {', '.join(c[:7] for c in recorded.code) or 'unknown code'} ({path}"
+         + (f"; {len(missing)} of its {len(planned)} planned runs are not in it" if len(missing) else "") + ")")
+    if lacks:
+        echo(f"{name}: not in the committed report, so not on the page: {'; '.join(lacks)}")
+    return data
+
+
+def missing_diagnostics(recorded: Recorded | None) -> list[str]:
+    """``variant / scene`` cells whose diagnostics the committed page showed but its folder lacks."""
+    if recorded is None:
+        return []
+    folder = recorded.folder / "diagnostics"
+    return [f"{v} / {s}" for v, s, _ in recorded.diagnostic_seeds if not (folder / v / s).is_dir()]
+
+
+def _lacking(recorded: Recorded) -> list[str]:
+    """What the committed report does not hold of what its page showed or named."""
+    out = []
+    if not (recorded.folder / "index.md").is_file():
+        out.append(f"its page ({recorded.folder / 'index.md'}: the store, parent runs and invocations that made the"
+                   " runs, and which seeds' diagnostics it showed)")
+    if gone := missing_diagnostics(recorded):
+        out.append(f"the diagnostics of {', '.join(gone)} (artifacts of the runs in the store that made them)")
+    return out
+
+
+def source_text(data: ReportData) -> str:
+    """`` from the committed runs of <code> (<runs.csv>)`` for a page made from them, else ""."""
+    if data.recorded is None:
+        return ""
+    code = ", ".join(c[:7] for c in data.recorded.code) or "unknown code"
+    return f" from the committed runs of {code} ({(data.recorded.folder / 'runs.csv').as_posix()})"
+
+
+def _files(folder: Path) -> list[Path]:
+    """Every file under ``folder``, each folder's entries by name, subfolders in place (the order
+    the tracking store lists a run's artifacts in)."""
+    out: list[Path] = []
+    for p in sorted(folder.iterdir(), key=lambda p: p.name):
+        out.extend(_files(p) if p.is_dir() else [p])
+    return out
+
+
+def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[Path]]]:
+    """``sections.diagnostics`` for a report from committed runs: the committed report's
+    ``diagnostics/<variant>/<scene>/`` files (copied into ``out`` unless they are there), per
+    cell in the order the store's runs give, with the seed its page named (else the lowest
+    finished one)."""
+    assert data.recorded is not None
+    src = data.recorded.folder / "diagnostics"
+    patterns = list(data.study.diagnostics) or ["*"]
+    seeds = {(v, s): seed for v, s, seed in data.recorded.diagnostic_seeds}
+    got = []
+    ok = data.df[data.df.status == "FINISHED"].sort_values("seed")
+    for (v, s), sub in ok.groupby(["variant", "scene"], sort=False):
+        folder = src / v / s
+        if not folder.is_dir():
+            continue
+        files = [p for p in _files(folder) if any(fnmatch.fnmatch(p.name, pat) for pat in patterns)]
+        target = out / "diagnostics" / v / s
+        copies = [target / p.relative_to(folder) for p in files]
+        if target.resolve() != folder.resolve():  # else --out is the committed root: they are there
+            for p, copy in zip(files, copies):
+                copy.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(p, copy)
+        if files:
+            got.append((v, s, seeds.get((v, s), int(sub.seed.iloc[0])), copies))
+    return got
