@@ -2,12 +2,20 @@
 either already provides).
 
 - ``family_adjust``: Holm (or Benjamini–Hochberg) over a named family of claims
-  (``statsmodels.stats.multitest.multipletests``);
+  (``statsmodels.stats.multitest.multipletests``); ``union_adjust``: one Holm over a family's
+  difference *and* equivalence hypotheses together, so that everything the family can reject
+  shares one family-wise error rate (two separate Holm runs allow up to 2α);
 - ``tost_paired``, ``tost_one_sample``, ``tost_ind``: equivalence within ±SESOI, two one-sided
   tests (``statsmodels.stats.weightstats``);
+- ``minimal_effect_p``: the test that a mean difference lies *outside* ±SESOI (the
+  counterpart of TOST, for "≈" claims: ``scipy.stats.ttest_1samp`` against ±SESOI, one-sided);
 - ``n_for_t``: runs per arm (or pairs) for 80% power of the test actually used, at the
-  smallest effect of interest — prospective, never from the observed effect
-  (``statsmodels.stats.power``);
+  smallest effect of interest and at the α the claim faces — prospective, never from the
+  observed effect (``statsmodels.stats.power``);
+- ``pitman_morgan``: the spread of two *paired* samples (runs sharing a seed): SD(a)/SD(b) = r
+  ⇔ corr(a + r·b, a − r·b) = 0, Pearson's exact test under normality
+  (``scipy.stats.pearsonr``), two-sided against r = 1 and one-sided at ±r for equivalence;
+  ``pm_power`` / ``n_for_pm`` by simulation;
 - ``bf_power`` / ``n_for_bf``: the power of the Brown–Forsythe test (``scipy.stats.levene``,
   median centre) by simulation, since it has no closed form (normal samples, stated seed and
   number of draws);
@@ -45,6 +53,30 @@ def family_adjust(pvalues: list[float] | np.ndarray, method: str = "holm") -> np
     return out
 
 
+def union_adjust(p_difference: np.ndarray, p_equivalence: np.ndarray, method: str = "holm"
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Both p-value sets of one family adjusted in a single pass: every finite p (difference or
+    equivalence, of any row) is one hypothesis of the family, so the family-wise error over all
+    of them is at most ALPHA (Holm). NaN stays NaN and is not counted."""
+    d, e = np.asarray(p_difference, dtype=float), np.asarray(p_equivalence, dtype=float)
+    both = family_adjust(np.concatenate([d, e]), method)
+    return both[: len(d)], both[len(d):]
+
+
+def family_size(p_difference: np.ndarray, p_equivalence: np.ndarray) -> int:
+    """How many hypotheses a family holds (finite p-values of either kind)."""
+    return int(np.isfinite(np.asarray(p_difference, float)).sum() + np.isfinite(np.asarray(p_equivalence, float)).sum())
+
+
+def minimal_effect_p(d: np.ndarray, sesoi: float) -> float:
+    """p that the mean of ``d`` lies outside ±sesoi (H0: |mean| ≤ sesoi): the smaller of the two
+    one-sided t-tests against +sesoi (greater) and −sesoi (less), doubled (Bonferroni over sides)."""
+    d = np.asarray(d, dtype=float)
+    upper = stats.ttest_1samp(d, sesoi, alternative="greater").pvalue
+    lower = stats.ttest_1samp(d, -sesoi, alternative="less").pvalue
+    return float(min(1.0, 2 * min(upper, lower)))
+
+
 def tost_paired(d: np.ndarray, sesoi: float) -> float:
     """p of the two one-sided tests that the mean paired difference lies within ±sesoi."""
     from statsmodels.stats.weightstats import ttost_paired
@@ -61,9 +93,9 @@ def tost_ind(a: np.ndarray, b: np.ndarray, sesoi: float) -> float:
     return float(ttost_ind(np.asarray(a, float), np.asarray(b, float), -sesoi, sesoi, usevar="unequal")[0])
 
 
-def n_for_t(sesoi: float, sd: float, paired: bool) -> float:
+def n_for_t(sesoi: float, sd: float, paired: bool, alpha: float = ALPHA) -> float:
     """Pairs (``paired``: one-sample/paired t) or runs per arm (Welch ≈ two-sample t) for 80%
-    power of a two-sided test at ALPHA when the true effect is ``sesoi``; ``sd`` is the SD of
+    power of a two-sided test at ``alpha`` when the true effect is ``sesoi``; ``sd`` is the SD of
     the paired differences (or the pooled SD of the runs). inf when it exceeds N_MAX."""
     from statsmodels.stats.power import TTestIndPower, TTestPower
 
@@ -73,7 +105,7 @@ def n_for_t(sesoi: float, sd: float, paired: bool) -> float:
     with warnings.catch_warnings():  # no root within the solver's bounds: "more than N_MAX"
         warnings.simplefilter("ignore")
         try:
-            n = float(solver.solve_power(effect_size=sesoi / sd, alpha=ALPHA, power=POWER, alternative="two-sided"))
+            n = float(solver.solve_power(effect_size=sesoi / sd, alpha=alpha, power=POWER, alternative="two-sided"))
         except Exception:
             return math.inf
     return float(math.ceil(n)) if math.isfinite(n) and n <= N_MAX else math.inf
@@ -115,6 +147,56 @@ def n_for_bf(sd_ratio: float, draws: int = BF_DRAWS, seed: int = BF_SEED, n_max:
     while hi - lo > 1:
         mid = (lo + hi) // 2
         lo, hi = (lo, mid) if bf_power(sd_ratio, mid, draws, seed) >= POWER else (mid, hi)
+    return float(hi)
+
+
+def pitman_morgan(a: np.ndarray, b: np.ndarray, ratio: float = 1.0, alternative: str = "two-sided") -> float:
+    """p of the Pitman–Morgan test that SD(a)/SD(b) = ``ratio`` for paired samples (a[i] with
+    b[i]): var(a) − ratio²·var(b) = cov(a + ratio·b, a − ratio·b), so the hypothesis is a zero
+    Pearson correlation of those two series (exact under bivariate normality, n − 2 df).
+    ``alternative``: "less" (the true ratio is below ``ratio``), "greater", or "two-sided"."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    u, v = a + ratio * b, a - ratio * b
+    if np.ptp(u) == 0 or np.ptp(v) == 0:
+        return math.nan
+    return float(stats.pearsonr(u, v, alternative=alternative).pvalue)
+
+
+def pitman_morgan_tost(a: np.ndarray, b: np.ndarray, sesoi: float) -> float:
+    """p that SD(a)/SD(b) lies within [1/sesoi, sesoi] (two one-sided Pitman–Morgan tests)."""
+    below = pitman_morgan(a, b, sesoi, "less")  # rejects "ratio ≥ sesoi"
+    above = pitman_morgan(a, b, 1.0 / sesoi, "greater")  # rejects "ratio ≤ 1/sesoi"
+    return max(below, above)
+
+
+def pm_power(sd_ratio: float, n: int, rho: float = 0.0, draws: int = BF_DRAWS, seed: int = BF_SEED,
+             alpha: float = ALPHA) -> float:
+    """Power of the two-sided Pitman–Morgan test with ``n`` pairs when SD(a) = ``sd_ratio``·SD(b)
+    and the paired runs correlate ``rho`` (bivariate normal; ``draws`` experiments, ``seed``)."""
+    rng = np.random.default_rng(seed)
+    z1, z2 = rng.normal(size=(2, draws, n))
+    b = z1
+    a = sd_ratio * (rho * z1 + math.sqrt(1 - rho * rho) * z2)
+    u, v = a + b, a - b
+    u, v = u - u.mean(axis=1, keepdims=True), v - v.mean(axis=1, keepdims=True)
+    r = (u * v).sum(axis=1) / np.sqrt((u * u).sum(axis=1) * (v * v).sum(axis=1))
+    t = r * np.sqrt((n - 2) / np.maximum(1e-300, 1 - r * r))
+    return float((2 * stats.t.sf(np.abs(t), n - 2) < alpha).mean())
+
+
+def n_for_pm(sd_ratio: float, rho: float = 0.0, alpha: float = ALPHA, draws: int = BF_DRAWS, seed: int = BF_SEED,
+             n_max: int = 200) -> float:
+    """Smallest number of pairs with simulated Pitman–Morgan power ≥ 80% at ``sd_ratio`` (inf past ``n_max``)."""
+    if not sd_ratio > 0 or sd_ratio == 1:
+        return math.inf
+    lo, hi = 3, 4
+    while pm_power(sd_ratio, hi, rho, draws, seed, alpha) < POWER:
+        lo, hi = hi, hi * 2
+        if hi > n_max:
+            return math.inf
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if pm_power(sd_ratio, mid, rho, draws, seed, alpha) >= POWER else (mid, hi)
     return float(hi)
 
 

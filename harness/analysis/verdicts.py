@@ -1,23 +1,37 @@
 """From tested claims to verdicts a referee would accept.
 
-``evaluate(df, claims)`` tests every claim of a study on its runs (``analysis.claim_tests``): one
-row per hypothesis (a claim, or one scene of a scene-dependent claim) with the raw p of the
-difference test and of the equivalence test, the heterogeneity p, the paper's numbers and
-the paper's own evidence. ``decide(frame)`` corrects the p-values over each named family
-(``ClaimSpec.group``: Holm by default, separately for the difference and the equivalence
-tests) and gives every row one verdict:
+``evaluate(df, claims, study, register)`` tests every claim of a study on its runs
+(``analysis.claim_tests``): one row per hypothesis (a claim, or one scene of a scene-dependent
+claim) with the raw p of the difference test, of the equivalence test and — for "≈" claims —
+of the minimal-effect test, the heterogeneity p, and the claim's place in the paper register
+(``spec.paper_register``: the claim that ``decides`` a statement, ``evidence`` shown inside a
+statement's row, or a ``replaced`` claim). ``decide(frame)`` corrects the rows that count over
+each named family (``ClaimSpec.group``) and gives every row one verdict:
 
-- **equivalent**: the equivalence test rejects (the effect is within ±SESOI): no effect as
-  large as the one of interest at this scale — a decision, not a shrug;
+- **one family, one error rate**: every hypothesis a family can reject — difference and
+  equivalence tests of every counted row — goes into one Holm procedure
+  (``stats.union_adjust``), so the family-wise error is at most α (two separate Holm runs allow
+  up to 2α; tests/harness/test_claims.py simulates it);
+- **what counts**: extension and convention claims, and in the paper family exactly one row
+  per statement (its deciding claim); evidence rows, withdrawn claims and descriptions are shown
+  with their raw p and do not enter any family;
+- **equivalent**: the equivalence test rejects (the effect is within ±SESOI): no effect as large
+  as the one of interest at this scale — a decision, not a shrug;
 - **reproduced** / **contradicted**: the difference test rejects, the effect in the claimed /
   the opposite direction (``not_higher`` / ``not_lower`` claims are also reproduced by
-  equivalence; ``exists`` claims by their existential test);
-- **inconclusive**: neither, with the runs per arm that 80% power at the SESOI needs;
-- **not tested** (the runs it needs are missing) and **not exercised** (the mechanism it
-  needs is absent on the scene: ``ClaimSpec.requires``) are not in any family.
+  equivalence; ``exists`` claims by their existential test; ``equivalent`` claims — the
+  paper's "≈" — are reproduced by equivalence and contradicted by the minimal-effect test);
+- **inconclusive**: neither, with the runs per arm that 80% power at the SESOI needs *at the α
+  the claim faces* (Bonferroni's α/m of its family, the strictest step of Holm);
+- **not tested** (the runs it needs are missing), **not exercised** (the mechanism it needs is
+  absent on the scene: ``ClaimSpec.requires``), **described** (a spread described, no test),
+  **evidence** and **withdrawn** are in no family.
 
-The study report calls ``decide`` on one study's rows (labelled "within this study");
-``reports/index.md`` calls it on every study's rows at once (the family the tally is over).
+Beside the direction, each deciding row judges the paper's *size* (``paper_size``): is the
+paper's own effect inside our 95% CI ("as large as the paper's"), below it or above it.
+
+The study report and ``reports/index.md`` both show the verdicts of one decision over every
+study's rows (``report.families``), so a page and the index cannot disagree.
 """
 
 from __future__ import annotations
@@ -28,15 +42,21 @@ import numpy as np
 import pandas as pd
 
 from harness.analysis import claim_tests as C, stats
+from harness.spec.paper_register import Register, Statement
 from harness.spec.study_schema import ClaimSpec
 
 REPRODUCED, CONTRADICTED, EQUIVALENT, INCONCLUSIVE = "reproduced", "contradicted", "equivalent", "inconclusive"
-NOT_TESTED, NOT_EXERCISED = "not tested", "not exercised"
+NOT_TESTED, NOT_EXERCISED, DESCRIBED = "not tested", "not exercised", "described"
+EVIDENCE, WITHDRAWN = "evidence", "withdrawn"
+DECIDED = (REPRODUCED, CONTRADICTED, EQUIVALENT, INCONCLUSIVE)  # verdicts of rows a family decides
 CORRECTION = "holm"
-COLUMNS = ["id", "group", "statement", "metric", "test", "expect", "comparison", "scene", "scope", "method", "n",
-           "effect", "ci_low", "ci_high", "ci90_low", "ci90_high", "sesoi", "sesoi_source", "stat_name", "statistic",
-           "p", "p_tost", "p_het", "p_adj", "p_tost_adj", "family", "verdict", "n_needed", "note", "detail",
-           "paper_statement", "paper_source", "paper_numbers", "paper_evidence", "paper_effects"]
+DECIDES, AS_EVIDENCE, REPLACED = "decides", "evidence", "replaced"
+COLUMNS = ["id", "claim", "group", "statement", "metric", "test", "expect", "comparison", "scene", "scope", "method",
+           "n", "effect", "ci_low", "ci_high", "ci90_low", "ci90_high", "sesoi", "sesoi_source", "stat_name",
+           "statistic", "p", "p_tost", "p_outside", "p_het", "p_adj", "p_tost_adj", "family", "family_size", "verdict",
+           "raw_verdict", "n_needed", "power_test", "power_param", "note", "detail", "role", "statement_id",
+           "registered", "withdrawn", "history", "counted", "paper_statement", "paper_source", "paper_numbers",
+           "paper_evidence", "paper_effects", "paper_size"]
 
 
 def comparison_text(claim: ClaimSpec) -> str:
@@ -44,41 +64,52 @@ def comparison_text(claim: ClaimSpec) -> str:
     where = f" ({', '.join(claim.scenes)})" if claim.scenes and claim.test != "interaction" else ""
     if claim.test == "decoupled":
         return f"some pair equal in {claim.metric} (±{claim.sesoi:g}) but not in {claim.versus}{where}"
+    if claim.test == "dissociated":
+        return f"some pair: {claim.metric} not worse (by {claim.sesoi:g}) but {claim.versus} worse{where}"
+    if claim.test == "spread":
+        return f"SD of {claim.a}{where}"
     if claim.test == "variance":
         return f"SD {claim.a} / SD {claim.b}{where}"
     if claim.test == "interaction":
-        return f"({claim.a} − {claim.b}) on {claim.scenes[0]} − on {claim.scenes[1]}"
+        pairs = claim.pairs or ((claim.a, claim.b),) * 2
+        return " − ".join(f"({a} − {b}) on {s}" for s, (a, b) in zip(claim.scenes, pairs))
     if claim.test == "contrast":
         return " and ".join(" ".join(f"{k:+g}·{v}" for v, k in w) for w in claim.contrasts) + where
     return f"{claim.a} − {claim.b or '0'}{where}"
 
 
-def _paper_columns(claim: ClaimSpec) -> dict[str, str]:
-    """The paper's numbers, its own evidence per dataset and its effects (for the forest plot)."""
-    if claim.paper is None:
+def paper_columns(statement: Statement | None, test: str) -> dict[str, str]:
+    """The paper's numbers, its own evidence per dataset and its effects (for the size judgement
+    and the forest plot), from the statement's register entry."""
+    if statement is None:
         return {"paper_statement": "", "paper_source": "", "paper_numbers": "", "paper_evidence": "",
                 "paper_effects": ""}
     numbers, evidence, effects = [], [], []
-    for r in claim.paper.rows:
-        if claim.test == "variance" and r.a_std is not None and r.b_std is not None:
-            numbers.append(f"{r.dataset}: SD {r.b_std:g} → {r.a_std:g} ({r.n} runs)")
+    for r in statement.numbers:
+        note = f" ({r.note})" if r.note else ""
+        if test == "variance" and r.a_std is not None and r.b_std is not None and r.a is None:
+            numbers.append(f"{r.dataset}: SD {r.b_std:g} → {r.a_std:g} ({r.n} runs){note}")
             effects.append(f"{r.dataset}={r.a_std / r.b_std:.6g}")
             evidence.append(f"{r.dataset}: {_f_test(r.a_std, r.b_std, r.n)}")
+            continue
+        if test == "spread" and r.a_std is not None and r.a is None:
+            numbers.append(f"{r.dataset}: SD {r.a_std:g} ({r.n} runs){note}")
+            effects.append(f"{r.dataset}={r.a_std:.6g}")
             continue
         if r.a is None:
             numbers.append(f"{r.dataset}: {r.note or 'no number'}")
             continue
         pm = (lambda v, sd: f"{v:g} ± {sd:g}" if sd is not None else f"{v:g}")
-        numbers.append(f"{r.dataset}: {pm(r.b, r.b_std)} → {pm(r.a, r.a_std)}" + (f" ({r.n} runs)" if r.n else "")
-                       if r.b is not None else f"{r.dataset}: {r.a:+g}")
+        numbers.append((f"{r.dataset}: {pm(r.b, r.b_std)} → {pm(r.a, r.a_std)}" + (f" ({r.n} runs)" if r.n else "")
+                        if r.b is not None else f"{r.dataset}: {r.a:+g}") + note)
         effects.append(f"{r.dataset}={r.effect:.6g}")
         if r.b is not None:
-            ev = stats.paper_evidence(r.a, r.b, r.a_std, r.b_std, r.n, r.run_sd, r.run_sd_n)
+            ev = stats.paper_evidence(r.a, r.b, r.a_std, r.b_std, r.n)
             evidence.append(f"{r.dataset}: {ev.effect:+.2f}, " + (
-                "no spread reported" if math.isnan(ev.p) else
+                "no spread reported for this configuration" if math.isnan(ev.p) else
                 f"p = {ev.p:.2g} ({ev.how}): {'distinguishable' if ev.p < stats.ALPHA else 'not distinguishable'}"
                 " from its own spread"))
-    return {"paper_statement": claim.paper.statement, "paper_source": claim.paper.source,
+    return {"paper_statement": statement.statement, "paper_source": statement.source,
             "paper_numbers": "; ".join(numbers), "paper_evidence": "; ".join(evidence),
             "paper_effects": ";".join(effects)}
 
@@ -94,15 +125,35 @@ def _f_test(a_std: float, b_std: float, n: int | None) -> str:
     return f"SD ratio {a_std / b_std:.2f}, F-test p = {p:.2g} ({'distinguishable' if p < stats.ALPHA else 'not distinguishable'})"
 
 
-def _row(claim: ClaimSpec, scene: str, scope: str) -> dict:
-    return {"id": claim.id if not scene else f"{claim.id}[{scene}]", "group": claim.group,
+def size_text(effects: str, low: float, high: float) -> str:
+    """Per dataset of the paper: its effect inside our 95% CI ("as large as the paper's"), or
+    ours smaller / larger than the paper's."""
+    out = []
+    for part in filter(None, str(effects or "").split(";")):
+        dataset, value = part.rsplit("=", 1)
+        v = float(value)
+        if not (np.isfinite(low) and np.isfinite(high)):
+            continue
+        judged = ("as large as the paper's" if low <= v <= high else
+                  "smaller than the paper's" if v > high else "larger than the paper's")
+        out.append(f"{dataset}: {judged}")
+    return "; ".join(out)
+
+
+def _row(claim: ClaimSpec, scene: str, scope: str, study: str, register: Register | None) -> dict:
+    found = register.role(study, claim.id) if register is not None and study else None
+    statement, role = found if found else (None, "")
+    return {"id": claim.id if not scene else f"{claim.id}[{scene}]", "claim": claim.id, "group": claim.group,
             "statement": claim.statement, "metric": claim.metric, "test": claim.test, "expect": claim.expect,
             "comparison": comparison_text(claim), "scene": scene, "scope": scope, "method": "", "n": "",
             "effect": math.nan, "ci_low": math.nan, "ci_high": math.nan, "ci90_low": math.nan, "ci90_high": math.nan,
             "sesoi": claim.sesoi, "sesoi_source": claim.sesoi_source, "stat_name": "", "statistic": math.nan,
-            "p": math.nan, "p_tost": math.nan, "p_het": math.nan, "p_adj": math.nan, "p_tost_adj": math.nan,
-            "family": "", "verdict": NOT_TESTED, "n_needed": math.nan, "note": "", "detail": "",
-            **_paper_columns(claim)}
+            "p": math.nan, "p_tost": math.nan, "p_outside": math.nan, "p_het": math.nan, "p_adj": math.nan,
+            "p_tost_adj": math.nan, "family": "", "family_size": math.nan, "verdict": NOT_TESTED, "raw_verdict": "",
+            "n_needed": math.nan, "power_test": "", "power_param": math.nan, "note": "", "detail": "",
+            "role": role, "statement_id": statement.id if statement else "", "registered": claim.registered,
+            "withdrawn": claim.withdrawn, "history": " / ".join(claim.history), "counted": False,
+            **paper_columns(statement if role == DECIDES else None, claim.test), "paper_size": ""}
 
 
 def _tested(row: dict, df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> dict:
@@ -113,33 +164,41 @@ def _tested(row: dict, df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ..
         res = C.compare(df, claim, scenes)
     except ValueError as err:
         return {**row, "note": str(err)}
-    row = {**row, "method": res.method, "n": res.n, "effect": res.effect, "ci_low": res.ci[0], "ci_high": res.ci[1],
+    equivalence_claim = claim.expect == "equivalent"
+    row = {**row, "method": res.method + ("; contradicted by the minimal-effect test (|effect| > SESOI)"
+                                          if equivalence_claim else ""),
+           "n": res.n, "effect": res.effect, "ci_low": res.ci[0], "ci_high": res.ci[1],
            "ci90_low": res.ci90[0], "ci90_high": res.ci90[1], "stat_name": res.stat_name,
-           "statistic": res.statistic, "p": res.p, "p_tost": res.p_tost, "detail": res.detail,
-           "verdict": INCONCLUSIVE, "n_needed": res.needed()}
-    if not np.isfinite(res.p):
+           "statistic": res.statistic, "p": res.p_outside if equivalence_claim else res.p, "p_tost": res.p_tost,
+           "p_outside": res.p_outside, "detail": res.detail, "verdict": INCONCLUSIVE, "power_test": res.power[0],
+           "power_param": res.power[1]}
+    if claim.test == "spread":
+        return {**row, "verdict": DESCRIBED, "p": math.nan, "p_tost": math.nan}
+    if not np.isfinite(row["p"]):
         row.update(verdict=NOT_TESTED, note="no spread in the data: the test is undefined")
     return row
 
 
-def evaluate(df: pd.DataFrame, claims: tuple[ClaimSpec, ...] | list[ClaimSpec]) -> pd.DataFrame:
+def evaluate(df: pd.DataFrame, claims: tuple[ClaimSpec, ...] | list[ClaimSpec], study: str = "",
+             register: Register | None = None) -> pd.DataFrame:
     """One row per hypothesis (``COLUMNS``) with raw p-values; verdicts need ``decide``."""
     rows = []
     for c in claims:
         why = C.missing(df, c)
         if why:
-            rows.append({**_row(c, "", "pooled" if len(c.scenes) != 1 else c.scenes[0]), "note": why})
+            rows.append({**_row(c, "", "pooled" if len(c.scenes) != 1 else c.scenes[0], study, register),
+                         "note": why})
             continue
         p_het, per_scene = C.scene_split(df, c)
         signs = {np.sign(v) for v in per_scene.values() if v != 0}
         if p_het < stats.ALPHA and len(signs) > 1:  # the scenes disagree: never pooled over opposite signs
             for scene in per_scene:
-                row = _row(c, scene, f"scene-dependent (heterogeneity p = {p_het:.2g})")
+                row = _row(c, scene, f"scene-dependent (heterogeneity p = {p_het:.2g})", study, register)
                 rows.append({**_tested(row, df, c, (scene,)), "p_het": p_het})
             continue
         used = list(c.scenes) or list(dict.fromkeys(C.finished(df, c.metric).scene))
         scope = ", ".join(used) + (" (pooled)" if len(used) > 1 and c.test != "interaction" else "")
-        rows.append({**_tested(_row(c, "", scope), df, c, c.scenes), "p_het": p_het})
+        rows.append({**_tested(_row(c, "", scope, study, register), df, c, c.scenes), "p_het": p_het})
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
@@ -156,6 +215,8 @@ def verdict(expect: str, effect: float, test: str, p_adj: float, p_tost_adj: flo
     sign = _direction(effect, test)
     equivalent = p_tost_adj < alpha
     different = p_adj < alpha and sign != 0
+    if expect == "equivalent":  # "≈": p_adj is the minimal-effect test's (|effect| > SESOI)
+        return REPRODUCED if equivalent else CONTRADICTED if different else INCONCLUSIVE
     if expect in ("not_higher", "not_lower"):
         against = 1 if expect == "not_higher" else -1
         if equivalent:  # within ±SESOI: not higher (or lower) by an amount of interest
@@ -170,22 +231,57 @@ def verdict(expect: str, effect: float, test: str, p_adj: float, p_tost_adj: flo
     return INCONCLUSIVE
 
 
+def counts(row: pd.Series) -> bool:
+    """Does the row enter its family? Extension and convention claims do; a paper claim only when
+    it decides its statement; never a withdrawn claim, evidence, a description or an untested row."""
+    if row.verdict not in DECIDED or row.withdrawn or row.role in (AS_EVIDENCE, REPLACED):
+        return False
+    return row.group != "paper" or row.role in ("", DECIDES)  # "": a claim outside any register (its own statement)
+
+
+def _needed(row: pd.Series, alpha: float) -> float:
+    """Runs per arm (pairs) for 80% power at the SESOI and ``alpha``, for the test the row used."""
+    kind, param = row.power_test, float(row.power_param)
+    if kind in ("t_paired", "t_ind"):
+        return stats.n_for_t(row.sesoi, param, paired=kind == "t_paired", alpha=alpha)
+    if kind == "pm":
+        return stats.n_for_pm(row.sesoi, rho=param, alpha=alpha)
+    if kind == "bf":
+        return stats.n_for_bf(row.sesoi)
+    return math.nan
+
+
 def decide(frame: pd.DataFrame, method: str = CORRECTION, label: str = "") -> pd.DataFrame:
-    """``frame`` with ``p_adj``, ``p_tost_adj``, ``family`` and ``verdict`` per row: each group
-    is one family, corrected with ``method`` separately for difference and equivalence p-values."""
+    """``frame`` with ``p_adj``, ``p_tost_adj``, ``family``, ``counted`` and ``verdict`` per row: the
+    counted rows of each group are one family, corrected with ``method`` over their difference
+    and equivalence p-values together; the other rows keep their raw p and say what they are."""
     out = frame.copy()
-    tested = out.verdict.isin([INCONCLUSIVE, REPRODUCED, CONTRADICTED, EQUIVALENT])
-    for group, idx in out[tested].groupby("group").groups.items():
-        n = len(idx)
-        out.loc[idx, "p_adj"] = stats.family_adjust(out.loc[idx, "p"].to_numpy(float), method)
-        out.loc[idx, "p_tost_adj"] = stats.family_adjust(out.loc[idx, "p_tost"].to_numpy(float), method)
-        out.loc[idx, "family"] = f"{group}{label}: {method.capitalize()} over {n}"
-    for i in out[tested].index:
+    out["counted"] = out.apply(counts, axis=1) if len(out) else []
+    for group, idx in out[out.counted].groupby("group").groups.items():
+        p_adj, p_tost_adj = stats.union_adjust(out.loc[idx, "p"].to_numpy(float),
+                                               out.loc[idx, "p_tost"].to_numpy(float), method)
+        m = stats.family_size(out.loc[idx, "p"].to_numpy(float), out.loc[idx, "p_tost"].to_numpy(float))
+        out.loc[idx, "p_adj"], out.loc[idx, "p_tost_adj"] = p_adj, p_tost_adj
+        out.loc[idx, "family"] = f"{group}{label}: {method.capitalize()} over {m} hypotheses"
+        out.loc[idx, "family_size"] = m
+    for i in out.index:
         r = out.loc[i]
+        if r.verdict == DESCRIBED and r.role == DECIDES:
+            out.at[i, "paper_size"] = size_text(r.paper_effects, float(r.ci_low), float(r.ci_high))
+        if r.verdict not in DECIDED:
+            if r.withdrawn or r.role == REPLACED:
+                out.at[i, "raw_verdict"], out.at[i, "verdict"] = r.verdict, WITHDRAWN
+            continue
+        if not r.counted:  # shown with its unadjusted verdict, in no family
+            out.at[i, "raw_verdict"] = verdict(r.expect, float(r.effect), r.test, float(r.p), float(r.p_tost))
+            out.at[i, "verdict"] = WITHDRAWN if r.withdrawn or r.role == REPLACED else EVIDENCE
+            continue
         v = verdict(r.expect, float(r.effect), r.test, float(r.p_adj), float(r.p_tost_adj))
         out.at[i, "verdict"] = v
-        if v != INCONCLUSIVE:
-            out.at[i, "n_needed"] = math.nan
+        if v == INCONCLUSIVE:
+            out.at[i, "n_needed"] = _needed(r, stats.ALPHA / max(1.0, float(r.family_size)))
+        if r.role == DECIDES:
+            out.at[i, "paper_size"] = size_text(r.paper_effects, float(r.ci_low), float(r.ci_high))
     return out
 
 

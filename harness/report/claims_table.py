@@ -1,9 +1,10 @@
 """Claims in a report: the "Claims" table of ``study report NAME`` (Markdown and LaTeX), the
 text pieces ``reports/index.md`` shares, and the scatter behind an existential claim.
 
-``claims_markdown`` / ``claims_latex`` render the frame ``analysis.verdicts.decide`` returns;
-``decoupled_plot`` draws every run of a ``decoupled`` claim (secret 2: motion error against
-PSNR, per scene and variant).
+``claims_markdown`` / ``claims_latex`` render a study's rows of the decision over every study
+(``report.families``), each with the p that decided it; ``decoupled_plot`` draws every run of a
+``decoupled`` or ``dissociated`` claim (secret 2: motion error against PSNR, per scene and
+variant).
 """
 
 from __future__ import annotations
@@ -19,16 +20,23 @@ from harness.report.tables import decimals, latex_escape, pretty
 from harness.spec.study_schema import ClaimSpec
 
 VERDICT_MARK = {V.REPRODUCED: "✅ reproduced", V.CONTRADICTED: "❌ contradicted", V.EQUIVALENT: "🟰 equivalent",
-                V.INCONCLUSIVE: "❔ inconclusive", V.NOT_TESTED: "— not tested", V.NOT_EXERCISED: "⊘ not exercised"}
+                V.INCONCLUSIVE: "❔ inconclusive", V.NOT_TESTED: "— not tested", V.NOT_EXERCISED: "⊘ not exercised",
+                V.DESCRIBED: "📏 described", V.EVIDENCE: "· evidence", V.WITHDRAWN: "↩ withdrawn"}
+POST_HOC = "⚑"  # a claim written (or rewritten) after its runs
 VERDICT_RULES = (
     "Verdicts: **equivalent** — the equivalence test (TOST at ±SESOI) rejects: no effect as large as the"
     " smallest effect of interest at this scale; **reproduced** / **contradicted** — the difference test"
     " rejects with the effect in the claimed / the opposite direction (a `not_higher` or `not_lower` claim is"
-    " also reproduced by equivalence; an existential claim by its own test); **inconclusive** — neither, with"
-    " the runs per arm 80% power at the SESOI needs; **not exercised** — the mechanism the claim needs is"
-    " absent on the scene; **not tested** — the runs it needs are missing. α = 0.05 after the family's"
-    " correction. A claim whose scenes disagree (scene × variant interaction significant, effects of opposite"
-    " sign) is tested per scene and labelled scene-dependent.")
+    " also reproduced by equivalence; an existential claim by its own test; an \"≈\" claim is reproduced by"
+    " equivalence and contradicted when the minimal-effect test puts the effect outside ±SESOI);"
+    " **inconclusive** — neither, with the runs per arm that 80% power at the SESOI needs at the α the claim"
+    " faces (α/m of its family); **not exercised** — the mechanism the claim needs is absent on the scene;"
+    " **not tested** — the runs it needs are missing; **described** — a spread described beside the paper's,"
+    " no test. α = 0.05 after one Holm correction over everything the family can reject (difference and"
+    " equivalence tests together). Rows marked **evidence** (another condition of a statement) and"
+    " **withdrawn** are in no family: their verdict in brackets is at the unadjusted α. A claim whose scenes"
+    " disagree (scene × variant interaction significant, effects of opposite sign) is tested per scene and"
+    " labelled scene-dependent. " + POST_HOC + " marks a claim written or rewritten after its runs.")
 
 
 def _digits(row: pd.Series) -> int:
@@ -36,56 +44,102 @@ def _digits(row: pd.Series) -> int:
 
 
 def effect_text(row: pd.Series) -> str:
-    """``+0.42 [+0.31, +0.53]``; SD ratios as ``×0.45 [×0.21, ×0.98]``."""
+    """``+0.42 [+0.31, +0.53]``; SD ratios as ``×0.45 [×0.21, ×0.98]``; a described SD as ``SD 0.15 [0.10, 0.27]``."""
     if math.isnan(row.effect):
         return "—"
     d = _digits(row)
     if row.test == "variance":
         return f"×{row.effect:.{d}f} [×{row.ci_low:.{d}f}, ×{row.ci_high:.{d}f}]"
+    if row.test == "spread":
+        return f"SD {num(row.effect, d)} [{num(row.ci_low, d)}, {num(row.ci_high, d)}]"
     return f"{num(row.effect, d, True)} [{num(row.ci_low, d, True)}, {num(row.ci_high, d, True)}]"
 
 
 def sesoi_text(row: pd.Series) -> str:
-    """``±0.34`` (``×2.75`` for SD ratios)."""
+    """``±0.2`` (``×1.5`` for SD ratios, ``—`` for a description)."""
+    if row.test == "spread":
+        return "—"
     return f"×{row.sesoi:g}" if row.test == "variance" else f"±{row.sesoi:g}"
 
 
 def needed_text(row: pd.Series) -> str:
-    """Runs per arm (pairs for paired tests) for 80% power at the SESOI; inconclusive rows only."""
+    """Runs per arm (pairs for paired tests) for 80% power at the SESOI and the claim's α; inconclusive rows only."""
     if row.verdict != V.INCONCLUSIVE or not isinstance(row.n_needed, float) or math.isnan(row.n_needed):
         return ""
+    at = (f"α/{int(row.family_size)}" if isinstance(row.family_size, float) and row.family_size > 1 else "α") + \
+        ", the SD of these runs"
     if math.isinf(row.n_needed):
-        return f"more than {stats.N_MAX} runs/arm for 80% power at the SESOI"
-    return f"≈{int(row.n_needed)} runs/arm for 80% power at the SESOI"
+        return f"more than {stats.N_MAX} runs/arm for 80% power at the SESOI ({at})"
+    return f"≈{int(row.n_needed)} runs/arm for 80% power at the SESOI ({at})"
+
+
+def deciding_p(row: pd.Series) -> float:
+    """The family-corrected p that decided the row: the equivalence test's for an equivalent (or an
+    equivalence-reproduced) row, else the difference test's."""
+    by_equivalence = row.verdict == V.EQUIVALENT or (row.verdict == V.REPRODUCED and (
+        row.expect == "equivalent" or (row.expect in ("not_higher", "not_lower") and row.p_tost_adj < stats.ALPHA)))
+    return float(row.p_tost_adj if by_equivalence else row.p_adj)
+
+
+def p_decided_text(row: pd.Series) -> str:
+    """``p = 0.012`` (the p that decided the row, family-corrected), ``TOST p = …`` when equivalence did;
+    the raw p for rows in no family."""
+    if row.verdict in (V.EVIDENCE, V.WITHDRAWN):
+        return f"raw p = {p_text(row.p)}" if not math.isnan(row.p) else "—"
+    if math.isnan(row.p_adj) and math.isnan(row.p_tost_adj):
+        return "—"
+    p = deciding_p(row)
+    kind = "TOST " if p == row.p_tost_adj and row.p_tost_adj != row.p_adj else (
+        "minimal-effect " if row.expect == "equivalent" else "")
+    return f"{kind}p = {p_text(p)}"
 
 
 def verdict_text(row: pd.Series) -> str:
     scope = f" [{row.scope.split(' (')[0]}]" if str(row.scope).startswith("scene-dependent") else ""
     note = f" ({row.note})" if row.note else ""
     need = needed_text(row)
-    return VERDICT_MARK[row.verdict] + (" — scene-dependent" if scope else "") + note + (f"; {need}" if need else "")
+    raw = f" [{row.raw_verdict} at raw α]" if row.raw_verdict and row.verdict in (V.EVIDENCE, V.WITHDRAWN) else ""
+    flag = f" {POST_HOC}" if row.registered else ""
+    return (VERDICT_MARK[row.verdict] + raw + (" — scene-dependent" if scope else "") + note
+            + (f"; {need}" if need else "") + flag)
 
 
-def claims_markdown(frame: pd.DataFrame) -> str:
-    """The claims table: one row per hypothesis, the verdict under the study's own families."""
+def role_text(row: pd.Series, decided: dict[str, str] | None = None) -> str:
+    """What the row is for the paper register: "decides `s3_stride_motion`", "evidence for
+    `s5_cc_mean` (decided by `secret5_cc.cc_raises_mean_drift`: inconclusive)"."""
+    if not row.statement_id:
+        return row.group
+    text = {"decides": "decides", "evidence": "evidence for", "replaced": "replaced in"}[row.role] + \
+        f" `{row.statement_id}`"
+    how = (decided or {}).get(row.statement_id, "")
+    return text + (f" ({how})" if how and row.role != "decides" else "")
+
+
+def claims_markdown(frame: pd.DataFrame, decided: dict[str, str] | None = None) -> str:
+    """The claims table of a study page: one row per hypothesis with the verdict of the decision
+    over every study (the same as reports/index.md's), and the p that decided it; ``decided``:
+    each statement's deciding claim and verdict, shown beside the evidence for it."""
     if frame.empty:
         return "This study states no claims."
-    lines = ["| Claim | Group | Paper | Comparison (metric) | SESOI | Effect [95% CI] | n | Statistic | p | p (family)"
-             " | Verdict |", "|---|---|---|---|---:|---|---|---:|---:|---:|---|"]
+    lines = ["| Claim | Role | Comparison (metric) | SESOI | Effect [95% CI] | n | Statistic | p (raw) |"
+             " p (decided) | Verdict |", "|---|---|---|---:|---|---|---:|---:|---:|---|"]
     for _, r in frame.iterrows():
         stat = f"{r.stat_name} = {r.statistic:.2f}" if not math.isnan(r.statistic) else "—"
         detail = f"; {r.detail}" if r.detail else ""
-        paper = text(r.paper_numbers) + (f"<br>*own evidence:* {r.paper_evidence}" if r.paper_evidence else "")
-        lines.append(f"| **{r.id}**: {r.statement} | {r.group} | {paper} | {r.comparison} (`{r.metric}`{detail}) |"
+        lines.append(f"| **{r.id}**: {r.statement} | {role_text(r, decided)} | {r.comparison} (`{r.metric}`{detail}) |"
                      f" {sesoi_text(r)} | {effect_text(r)} | {text(r.n)} | {stat} | {p_text(r.p)} |"
-                     f" {p_text(r.p_adj)} | {verdict_text(r)} |")
+                     f" {p_decided_text(r)} | {verdict_text(r)} |")
     families = sorted({f for f in frame.family if f})
     methods = sorted({m for m in frame.method if m})
-    sources = [f"`{r.id}`: {r.sesoi_source}" for _, r in frame.iterrows() if r.sesoi_source]
-    lines += ["", f"Families (within this study only; `reports/index.md` corrects over every study's claims):"
-              f" {'; '.join(families) or 'none tested'}, separately for the difference and the equivalence tests.",
+    scales = sorted({r.sesoi_source for _, r in frame.iterrows() if r.sesoi_source})
+    changed = [r for _, r in frame.iterrows() if r.registered or r.withdrawn]
+    lines += ["", f"Families (every study's claims, as in `reports/index.md`): {'; '.join(families) or 'none tested'}.",
               "", VERDICT_RULES, "", f"Tests: {'; '.join(methods) or 'none run'}.", "",
-              "Smallest effects of interest, fixed in the study file before the runs: " + "; ".join(sources) + "."]
+              "Smallest effects of interest: one per metric, on its own scale (" + "; ".join(scales) + ")."]
+    if changed:
+        lines += ["", "Claims written or withdrawn after their runs:", ""]
+        lines += [f"- **{r.id}**: " + (f"withdrawn — {r.withdrawn}" if r.withdrawn else f"registered {r.registered}")
+                  for r in changed]
     return "\n".join(lines)
 
 
@@ -93,13 +147,13 @@ def claims_latex(frame: pd.DataFrame, study: str) -> str:
     """A booktabs table of the claims (needs ``\\usepackage{booktabs}``)."""
     lines = [r"\begin{table}[t]", r"\centering",
              rf"\caption{{{latex_escape(study)}: claims on our runs; effect with 95\% CI, smallest effect of"
-             r" interest (SESOI), Holm-corrected $p$ within this study.}",
+             r" interest (SESOI), $p$ that decided the verdict (Holm over every study's family; raw for evidence).}",
              rf"\label{{tab:{study}-claims}}", r"\begin{tabular}{lllrlrl}", r"\toprule",
-             r"Claim & Comparison & Effect [95\% CI] & SESOI & $n$ & $p_\mathrm{Holm}$ & Verdict \\", r"\midrule"]
+             r"Claim & Comparison & Effect [95\% CI] & SESOI & $n$ & $p$ & Verdict \\", r"\midrule"]
     for _, r in frame.iterrows():
         lines.append(" & ".join([latex_escape(r.id), latex_escape(r.comparison).replace("−", "$-$"),
                                  latex_escape(effect_text(r)), latex_escape(sesoi_text(r)),
-                                 latex_escape(text(r.n)), latex_escape(p_text(r.p_adj)), r.verdict]) + r" \\")
+                                 latex_escape(text(r.n)), latex_escape(p_decided_text(r)), r.verdict]) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
     return "\n".join(lines)
 
@@ -130,5 +184,5 @@ def decoupled_plot(df: pd.DataFrame, claim: ClaimSpec, path: Path) -> Path:
         ax.grid(alpha=0.3)
         if len(ok):
             ax.legend(fontsize=7, loc="best")
-    fig.suptitle(f"{claim.id}: every run (equal RGB = within ±{claim.sesoi:g} of {claim.metric})", fontsize=10)
+    fig.suptitle(f"{claim.id}: every run (RGB counts as equal within ±{claim.sesoi:g} of {claim.metric})", fontsize=10)
     return save_figure(fig, path)

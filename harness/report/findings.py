@@ -11,8 +11,16 @@ them), ... ``write_findings`` saves them as JSON.
 
 FINDINGS.md cites a number with the key it comes from, in an HTML comment right after it
 (invisible when rendered): ``+0.77<!--ablation.claims.flow_improves.effect-->``; ``|abs``
-after the key cites the magnitude. ``check`` returns every problem: a decimal number without a
-key, an unknown key, or a number the data does not hold at the precision it is printed with.
+after the key cites the magnitude. ``check`` returns every problem:
+
+- a decimal number without a key (whole numbers without one are settings: "5 seeds", "20,000
+  Gaussians"; a whole number *with* a key is checked like any other: ``1,546<!--key-->``);
+- an unknown key, or a number the data does not hold at the precision it is printed with;
+- a direction the sentence states against the sign of the number it cites: "colour correction
+  lowers the spread (×1.61<!--…effect-->)" fails, since an SD ratio above 1 raises it. The
+  direction is the nearest verb before the number in its sentence (``UP`` / ``DOWN``), turned
+  round by a negation just before it; an effect is read against 0, an SD ratio against 1.
+
 A test runs it on the committed files, so FINDINGS.md cannot drift from the reports.
 """
 
@@ -27,7 +35,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-NUMBER = re.compile(r"(?<![\w.`/#-])([+\-−]?\d+\.\d+)(?:<!--([\w.\-|:\[\]]+)-->)?")
+NUMBER = re.compile(r"(?<![\w.`/#-])([+\-−×]?\d+\.\d+)(?:<!--([\w.\-|:\[\]]+)-->)?")
+WHOLE = re.compile(r"(?<![\w.,`/#×-])([+\-−]?\d{1,3}(?:,\d{3})+|[+\-−]?\d+)(?![\d.,]\d)<!--([\w.\-|:\[\]]+)-->")
+UP = ("raises", "raise", "raised", "raising", "increases", "increase", "increased", "widens", "widen", "adds", "add",
+      "improves", "improve", "higher", "larger", "more")
+DOWN = ("lowers", "lower", "lowered", "lowering", "reduces", "reduce", "reduced", "narrows", "narrow", "cuts", "cut",
+        "shrinks", "shrink", "less", "smaller", "fewer", "drops", "costs", "loses")
+NEGATIONS = ("not", "no", "never", "neither", "nor", "without")
+SIGNED = (".effect",)  # claims' effects: the direction a sentence may state (CI bounds straddle 0)
 
 
 def _slug(name: object) -> str:
@@ -80,17 +95,19 @@ def _medians(study: str, path: Path, out: dict[str, float]) -> None:
 
 
 def _paper(out: dict[str, float], studies_dir: Path | None) -> None:
-    """The paper's numbers as the study files state them: ``ablation.paper.flow_improves.DyNeRF.a``."""
-    from harness.spec.study_files import list_studies, load_study
+    """The paper's numbers as the register states them: ``paper.ab_flow.DyNeRF.a``."""
+    from harness.spec.paper_register import load_register
+    from harness.spec.study_files import STUDIES_DIR
 
-    for name in list_studies(studies_dir):
-        for claim in load_study(name, studies_dir).claims:
-            for row in claim.paper.rows if claim.paper else ():
-                ds = _slug(row.dataset)
-                for field in ("a", "b", "a_std", "b_std", "run_sd"):
-                    _put(out, f"{name}.paper.{claim.id}.{ds}.{field}", getattr(row, field))
-                if row.a is not None and row.b is not None:
-                    _put(out, f"{name}.paper.{claim.id}.{ds}.effect", row.a - row.b)
+    for s in load_register(Path(studies_dir or STUDIES_DIR)).statements:
+        for row in s.numbers:
+            ds = _slug(row.dataset)
+            for field in ("a", "b", "a_std", "b_std", "n"):
+                _put(out, f"paper.{s.id}.{ds}.{field}", getattr(row, field))
+            if row.a is not None and row.b is not None:
+                _put(out, f"paper.{s.id}.{ds}.effect", row.a - row.b)
+            if row.a_std is not None and row.b_std:
+                _put(out, f"paper.{s.id}.{ds}.sd_ratio", row.a_std / row.b_std)
 
 
 def collect_findings(root: Path, studies_dir: Path | None = None) -> dict[str, float]:
@@ -112,8 +129,11 @@ def collect_findings(root: Path, studies_dir: Path | None = None) -> dict[str, f
             _table(study, folder / "speed_accuracy_smallest.csv", "smallest", ["scene"], out)
     if (root / "claims.csv").is_file():  # the index's verdicts: corrected over every study
         for _, r in pd.read_csv(root / "claims.csv").iterrows():
-            for col in ("effect", "ci_low", "ci_high", "sesoi", "p", "p_adj", "p_tost_adj", "n_needed"):
-                _put(out, f"{r.study}.claims.{r.id}.{col}", r[col])
+            for col in ("effect", "ci_low", "ci_high", "sesoi", "p", "p_tost", "p_adj", "p_tost_adj", "n_needed",
+                        "family_size"):
+                _put(out, f"{r.study}.claims.{r.id}.{col}", r.get(col))
+            if r.get("test") == "variance":  # an SD ratio: its direction is read against 1
+                out[f"{r.study}.claims.{r.id}.centre"] = 1.0
     return out
 
 
@@ -124,12 +144,31 @@ def write_findings(root: Path, studies_dir: Path | None = None) -> Path:
     return path
 
 
+def _stated_direction(before: str) -> int:
+    """+1 / −1 for the nearest direction word of ``before`` (the sentence up to a number), turned
+    round by a negation among the three words before it; 0 when it states none."""
+    words = re.findall(r"[a-z']+", before.lower())
+    for i in range(len(words) - 1, -1, -1):
+        sign = 1 if words[i] in UP else -1 if words[i] in DOWN else 0
+        if sign:
+            negated = any(w in NEGATIONS or w.endswith("n't") for w in words[max(0, i - 3):i])
+            return -sign if negated else sign
+    return 0
+
+
+def _sentence_before(body: str, start: int) -> str:
+    """The text of the number's sentence before it (back to the last full stop, colon, semicolon or line)."""
+    cut = max(body.rfind(mark, 0, start) for mark in (". ", ": ", "; ", "\n", "— "))
+    return body[cut + 1:start]
+
+
 def check(text: str, findings: dict[str, float]) -> list[str]:
     """Problems with the numbers ``text`` cites (empty when every one is backed by ``findings``)."""
     problems = []
     body = re.sub(r"`[^`]*`", "", text)  # code spans (commands, commit ids) are not findings
-    for m in NUMBER.finditer(body):
-        shown, key = m.group(1).replace("−", "-"), m.group(2)
+    cited = [(m, True) for m in NUMBER.finditer(body)] + [(m, False) for m in WHOLE.finditer(body)]
+    for m, decimal in sorted(cited, key=lambda c: c[0].start()):
+        shown, key = m.group(1).replace("−", "-").replace("×", "").replace(",", ""), m.group(2)
         if key is None:
             problems.append(f"{shown}: no key says which generated number it is")
             continue
@@ -138,7 +177,15 @@ def check(text: str, findings: dict[str, float]) -> list[str]:
             problems.append(f"{shown}: unknown key {name}")
             continue
         value = abs(findings[name]) if mod == "abs" else findings[name]
-        decimals = len(shown.split(".")[1])
+        decimals = len(shown.split(".")[1]) if decimal else 0
         if round(value, decimals) != round(float(shown), decimals) and f"{value:.{decimals}f}" != shown.lstrip("+"):
             problems.append(f"{shown}: {name} is {value:.{decimals + 2}f}")
+            continue
+        if name.endswith(SIGNED) and mod != "abs":
+            centre = findings.get(name.rsplit(".", 1)[0] + ".centre", 0.0)
+            sign = 0 if value == centre else (1 if value > centre else -1)
+            said = _stated_direction(_sentence_before(body, m.start()))
+            if said and sign and said != sign:
+                problems.append(f"{m.group(1)}: the sentence says {'up' if said > 0 else 'down'}, but {name} is"
+                                f" {value:.4g}{' (a ratio: against 1)' if centre else ''}")
     return problems

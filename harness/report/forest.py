@@ -1,10 +1,11 @@
 """The forest plot that opens ``reports/index.md``: every claim at a glance.
 
-One row per tested hypothesis: our effect with its 95% CI in units of the claim's smallest
+One row per counted hypothesis: our effect with its 95% CI in units of the claim's smallest
 effect of interest (SD ratios on a log scale: log(ratio) / log(SESOI)), so ±1 is the band of
-effects too small to matter (shaded); the paper's own effect per dataset as a hollow
-diamond; colour by verdict. Existential claims have no effect of this kind and are left out
-(their row in the table says so), as are rows that were not tested.
+effects too small to matter (shaded), signed so that the direction the claim expects points
+right (a "lower" claim's effect is mirrored); the paper's own effect per dataset as a hollow
+diamond, signed alike; colour by verdict. Existential claims and descriptions have no effect
+of this kind and are left out (their row in the table says so), as are rows that were not tested.
 """
 
 from __future__ import annotations
@@ -24,8 +25,13 @@ from harness.report.plots import save_figure  # noqa: E402
 COLOURS = {V.REPRODUCED: "#2a9d4a", V.CONTRADICTED: "#c0392b", V.EQUIVALENT: "#2c6fbb", V.INCONCLUSIVE: "#8c8c8c"}
 
 
+def expected_sign(row: pd.Series) -> float:
+    """+1 when the claim expects a higher (or not lower, or equal) value, −1 when lower."""
+    return -1.0 if row.expect in ("lower", "not_higher") else 1.0
+
+
 def paper_points(row: pd.Series) -> list[tuple[str, float]]:
-    """The paper's effects of ``row`` per dataset, in SESOI units."""
+    """The paper's effects of ``row`` per dataset, in SESOI units (signed as ``expected_sign``)."""
     out = []
     for item in str(row.paper_effects or "").split(";"):
         if "=" not in item:
@@ -33,16 +39,17 @@ def paper_points(row: pd.Series) -> list[tuple[str, float]]:
         name, value = item.rsplit("=", 1)
         v = float(value)
         if row.test == "variance":
-            out.append((name, math.log(v) / math.log(row.sesoi) if v > 0 else math.nan))
+            out.append((name, expected_sign(row) * math.log(v) / math.log(row.sesoi) if v > 0 else math.nan))
         else:
-            out.append((name, v / row.sesoi))
+            out.append((name, expected_sign(row) * v / row.sesoi))
     return out
 
 
-def forest_plot(frame: pd.DataFrame, path: Path, title: str = "Every claim against its smallest effect of interest"
+def forest_plot(frame: pd.DataFrame, path: Path, title: str = "Every counted claim against its smallest effect of interest"
                 ) -> Path | None:
     """Draw ``frame`` (``verdicts.decide`` output with a ``study`` column); None when nothing to draw."""
-    rows = frame[frame.verdict.isin(list(COLOURS)) & (frame.test != "decoupled")].reset_index(drop=True)
+    rows = frame[frame.verdict.isin(list(COLOURS)) & ~frame.test.isin(["decoupled", "dissociated", "spread"])
+                 ].reset_index(drop=True)
     if rows.empty:
         return None
     height = 0.42 * len(rows) + 1.6
@@ -51,7 +58,8 @@ def forest_plot(frame: pd.DataFrame, path: Path, title: str = "Every claim again
     ax.axvline(0, color="black", lw=0.8)
     labels = []
     for y, (_, r) in enumerate(rows.iterrows()):
-        effect, lo, hi = V.in_sesoi_units(r)
+        effect, lo, hi = (expected_sign(r) * v for v in V.in_sesoi_units(r))
+        lo, hi = min(lo, hi), max(lo, hi)
         colour = COLOURS[r.verdict]
         ax.plot([lo, hi], [y, y], color=colour, lw=2.2, zorder=2)
         ax.plot([effect], [y], "o", color=colour, ms=6, zorder=3)
@@ -60,7 +68,8 @@ def forest_plot(frame: pd.DataFrame, path: Path, title: str = "Every claim again
         labels.append(f"{r.study}: {r.id}  [{r.group}]")
     ax.set_yticks(range(len(rows)), labels, fontsize=8)
     ax.invert_yaxis()
-    ax.set_xlabel("effect / smallest effect of interest (SD ratios: log ratio / log SESOI); 95% CI")
+    ax.set_xlabel("effect / smallest effect of interest, the claimed direction to the right"
+                  " (SD ratios: log ratio / log SESOI); 95% CI")
     handles = [plt.Line2D([], [], color=c, marker="o", lw=2, label=v) for v, c in COLOURS.items()]
     handles += [plt.Line2D([], [], color="black", marker="D", mfc="none", lw=0, label="paper's effect (per dataset)")]
     ax.legend(handles=handles, fontsize=7, loc="lower right", framealpha=0.9)

@@ -1,26 +1,27 @@
 """``reports/index.md`` (``study index``): the page a reader opens first.
 
-It opens, when some of its runs were made by another trainer than this checkout's, with a
-note saying so: which trainers, the command that refreshes them (``make reports``) and its
-expected time on this machine (``report.currency``: the plan and rates of
-``harness.cli.reports_plan``); a current page has none. Then comes the forest plot (every
-claim's effect in units of its smallest effect of interest, the paper's own effect marked); the
-page names the families its verdicts are corrected over
-(``analysis.verdicts``: one family per claim group over every study, not per study), tallies
-the verdicts per family, and has one row per hypothesis: the paper's numbers and the paper's
-own evidence (is its difference distinguishable from its own spread?), the SESOI, our effect
-with its 95% CI, n and family-corrected p, and the verdict, linked to the study's report.
-Then the speed–accuracy and stability charts, stale reports and studies without runs. A study
-the store has no runs of is read from its report under the reports root (its ``runs.csv``). The
-page carries no timestamp, so the same store gives the same page (a stale one's expected time
-is this machine's).
+It opens, when some of its runs were made by another trainer than this checkout's, with a note
+saying so: which trainers, the command that refreshes them (``make reports``) and its expected
+time on this machine (``report.currency``: the plan and rates of ``harness.cli.reports_plan``);
+a current page has none. Then one row per statement of the paper (the register, ``studies/_paper.yaml``), counted once: the
+paper's numbers with the spread it reports for that configuration and the paper's own evidence
+(is its difference distinguishable from its own spread?), the claim that decides the statement
+with its smallest effect of interest, our effect with its 95% CI, n and the family-corrected p
+that decided it, the verdict on the direction, and beside it the paper's *size* against ours.
+Other conditions of a statement (another scene, a larger budget) are shown in its row and
+counted nowhere. Then the metric conventions, this project's own extensions (a row per claim),
+the claims withdrawn or rewritten after their runs with their results, the forest plot, the
+speed–accuracy and stability charts, stale reports and studies without runs.
+
+The verdicts come from one decision over every study's claims (``report.families``), which the
+study pages show too. A study the store has no runs of is read from its report under the
+reports root (its ``runs.csv``). The page carries no timestamp, so the same runs give the same page
+(a stale one's expected time is this machine's).
 """
 
 from __future__ import annotations
 
 import math
-import re
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -28,38 +29,34 @@ import pandas as pd
 
 from harness.analysis import verdicts as V
 from harness.report import USER_REPORTS
-from harness.report.claims_table import VERDICT_MARK, VERDICT_RULES, effect_text, sesoi_text, verdict_text
+from harness.report.claims_table import (
+    POST_HOC,
+    VERDICT_MARK,
+    VERDICT_RULES,
+    effect_text,
+    p_decided_text,
+    sesoi_text,
+    verdict_text,
+)
 from harness.report.currency import plan_frame, stale_note
+from harness.report.families import StudyClaims, decide_all, family_verdicts, forget
 from harness.report.findings import write_findings
-from harness.report.fmt import p_text, text
+from harness.report.fmt import text
 from harness.report.forest import forest_plot
-from harness.report.results import collect, trainer_fingerprints
-from harness.spec.metrics import add_differences
-from harness.spec.study_files import list_studies, load_study
+from harness.spec.paper_register import Register, Statement
+from harness.spec.study_files import load_register
 from harness.spec.study_schema import CLAIM_GROUPS
 from harness.spec.throughput import MEASURED_JOBS, estimate
 from harness.tracking.provenance import checkout_fingerprint
+
+__all__ = ["StudyClaims", "decide_all", "index_markdown", "stale_studies", "write_claims_index"]
 
 CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per scene (PSNR vs train time and"
                                                     " #Gaussians, Pareto fronts)"),
           ("stability", "ladders.png", "Stability ladders: PSNR and failure rate (crash, divergence, collapse) per rung"),
           ("stability", "stability.png", "Stability: PSNR, spread and failure rate per difficulty cell"))
 FOREST = "forest.png"
-CODE_AT = re.compile(r"code at ([0-9a-f]{7,40}(?:, [0-9a-f]{7,40})*)")  # a study page's provenance line
-
-
-@dataclass
-class StudyClaims:
-    """One study's entry of the index page."""
-
-    study: str
-    question: str
-    frame: pd.DataFrame  # verdicts.evaluate, then decide_all
-    report: str  # link to the study's report, relative to the index page
-    n_finished: int
-    code: str = ""  # git sha(s) of the runs
-    fingerprints: tuple[str, ...] = ()  # trainer fingerprints of the finished runs
-    source: str = "tracking store"  # or "committed report" (its runs.csv)
+STATEMENT_FAMILIES = ("paper", "convention")  # families whose rows are the register's statements
 
 
 def stale_studies(entries: list[StudyClaims], current: str) -> list[tuple[str, str]]:
@@ -68,56 +65,147 @@ def stale_studies(entries: list[StudyClaims], current: str) -> list[tuple[str, s
             if set(e.fingerprints) != {current}]
 
 
-def _row(r: pd.Series, study: str, report: str) -> str:
-    ours = "—" if math.isnan(r.effect) else f"{effect_text(r)} ({r.n}, p = {p_text(r.p_adj)})"
-    evidence = r.paper_evidence or ("no numbers" if not r.paper_numbers else "—")
-    return (f"| {study} | **{r.id}**: {r.statement} | {text(r.paper_numbers)} | {evidence} | {sesoi_text(r)} |"
-            f" {ours} | {verdict_text(r)} | [{study}]({report}) |")
+def _ours(r: pd.Series) -> str:
+    if math.isnan(r.effect):
+        return "—"
+    return f"{effect_text(r)} ({r.n}, {p_decided_text(r)})"
+
+
+def _claim_row(r: pd.Series, study: str, report: str) -> str:
+    """An extension's row: one claim."""
+    return (f"| {study} | **{r.id}**: {r.statement} | {sesoi_text(r)} | {_ours(r)} | {verdict_text(r)} |"
+            f" [{study}]({report}) |")
+
+
+def _condition(r: pd.Series, study: str) -> str:
+    """An evidence row inside a statement's row: ``secret3.dense_best_fast_b20k: −2.36 [...] (raw p …) [verdict]``."""
+    return f"`{study}.{r.id}`: {_ours(r)} [{r.raw_verdict or r.verdict}]"
+
+
+def statement_verdict(s: Statement, deciding: list[tuple[str, pd.Series]]) -> str:
+    """The statement's verdict: its deciding row's, or why it has none."""
+    if s.not_tested:
+        return f"{VERDICT_MARK[V.NOT_TESTED]} ({s.not_tested})"
+    if not deciding:
+        return f"{VERDICT_MARK[V.NOT_TESTED]} (no runs of `{s.decided_by}`)"
+    return "; ".join(verdict_text(r) for _, r in deciding)
+
+
+def _statement_row(s: Statement, rows: dict[str, tuple[str, str, pd.Series]], numbers: str, evidence: str) -> str:
+    deciding = [(study, r) for ref, (study, report, r) in rows.items() if ref == s.decided_by]
+    decides = "; ".join(f"`{s.decided_by}` ({r.comparison}, `{r.metric}`, SESOI {sesoi_text(r)})" for _, r in deciding)
+    ours = "; ".join(_ours(r) for _, r in deciding) or "—"
+    size = "; ".join(r.paper_size for _, r in deciding if r.paper_size) or "—"
+    others = "<br>".join(_condition(rows[ref][2], rows[ref][0]) for ref in s.evidence if ref in rows) or "—"
+    link = next((f"[{study}]({report})" for ref, (study, report, _) in rows.items() if ref == s.decided_by), "—")
+    return (f"| {s.part} | **{s.id}**: {s.statement} *({s.source})* | {text(numbers) or '—'} | {evidence or '—'} |"
+            f" {decides or '—'} | {ours} | {statement_verdict(s, deciding)} | {size} | {others} | {link} |")
+
+
+def statement_tally(statements: list[Statement], rows: dict[str, tuple[str, str, pd.Series]]) -> str:
+    """``26 statements: 5 reproduced, 3 contradicted, … (4 of them decided by a claim written after its runs ⚑)``."""
+    verdicts, late = [], 0
+    for s in statements:
+        r = rows.get(s.decided_by, ("", "", None))[2] if s.decided_by else None
+        verdicts.append(r.verdict if r is not None else V.NOT_TESTED)
+        late += int(r is not None and bool(r.registered))
+    counts = pd.Series(verdicts, dtype=object).value_counts()
+    tally = ", ".join(f"{int(counts[v])} {v}" for v in VERDICT_MARK if v in counts)
+    flagged = f" ({late} decided by a claim written after its runs {POST_HOC})" if late else ""
+    return f"{len(statements)} statements: {tally or 'none'}{flagged}"
+
+
+def _statement_section(title: str, statements: list[Statement], rows: dict[str, tuple[str, str, pd.Series]],
+                       frames: pd.DataFrame) -> list[str]:
+    lines = [f"## {title}", "",
+             "| Part | Statement (source) | Paper (spread for this configuration) | Paper's own evidence | Decided by |"
+             " Ours: effect [95% CI] (n, p) | Verdict (direction) | Size: the paper's effect against our CI |"
+             " Other conditions (not counted) | Report |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for s in statements:
+        deciding = rows.get(s.decided_by)
+        numbers = deciding[2].paper_numbers if deciding is not None else "; ".join(
+            f"{r.dataset}: {r.note or (f'{r.a:g}' if r.a is not None else '—')}" for r in s.numbers)
+        evidence = deciding[2].paper_evidence if deciding is not None else ""
+        lines.append(_statement_row(s, rows, numbers, evidence))
+    return lines + [""]
+
+
+def _withdrawn_section(entries: list[StudyClaims]) -> list[str]:
+    rows = [(e, r) for e in entries for _, r in e.frame.iterrows() if r.verdict == V.WITHDRAWN]
+    if not rows:
+        return []
+    lines = ["## Withdrawn claims, with their results", "",
+             "A registered claim is never deleted after its runs: each claim below was withdrawn (its study file"
+             " says why and what replaced it) and is shown with its result on these runs, at the unadjusted α and"
+             " in no family.", "",
+             "| Study | Claim | Why withdrawn | On these runs | History |", "|---|---|---|---|---|"]
+    for e, r in rows:
+        history = text(r.get("history", "")) if "history" in r else ""
+        result = f"{_ours(r)} [{r.raw_verdict}]" + (f" ({r.note})" if r.note else "")
+        lines.append(f"| {e.study} | **{r.id}**: {r.statement} | {r.withdrawn or '—'} | {result} | {history or '—'} |")
+    return lines + [""]
 
 
 def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], missing: list[str],
-                   current: str = "", forest: str = "", todo: tuple[int, str] = (0, "")) -> str:
-    """The page (module docstring); ``entries`` carry frames already decided over all studies;
+                   current: str = "", forest: str = "", register: Register | None = None,
+                   todo: tuple[int, str] = (0, "")) -> str:
+    """The page (module docstring); ``entries`` carry frames already decided over every study;
     ``todo``: the runs ``make reports`` would run and their expected time (``refresh``)."""
+    register = register or Register()
     frames = [e.frame.assign(study=e.study) for e in entries if not e.frame.empty]
     allf = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=[*V.COLUMNS, "study"])
+    rows = {f"{e.study}.{r.claim}": (e.study, e.report, r) for e in entries for _, r in e.frame.iterrows()}
+    stale = stale_studies(entries, current) if current else []
     prints = sorted({f for e in entries for f in e.fingerprints})
-    lines = ["# The answers: every claim of the paper on our runs", "",
-             *(stale_note(prints, current, "make reports", *todo) if current else []),
-             "Regenerate with `make reports` (or `study index --out reports`). Each claim names its smallest"
-             " effect of interest (SESOI), fixed in its study file before the runs; the verdicts are corrected"
-             " over the families below, across every study.", ""]
-    if forest:
-        lines += [f"![Every claim's effect in units of its smallest effect of interest]({forest})", "",
-                  "Effects and 95% CIs divided by each claim's SESOI (grey: ±1, effects too small to matter);"
-                  " diamonds: the paper's own effect per dataset; colour: the verdict.", ""]
+    lines = ["# The answers: every statement of the paper on our runs", "",
+             *(stale_note(prints, current, "make reports", *todo) if current else [])]
+    lines += ["Regenerate with `make reports` (or `study index --out reports`). One row per statement of the paper"
+              " (`studies/_paper.yaml`), counted once and decided by one claim; each claim's smallest effect of"
+              " interest (SESOI) is its metric's, fixed once per metric on its own scale (docs/sesoi.md); the"
+              " verdicts are corrected over the families below, across every study, and the study pages show the"
+              " same verdicts.", ""]
     lines += ["## Families", ""]
     for group, what in CLAIM_GROUPS.items():
-        sub = allf[allf.group == group]
+        sub = allf[(allf.group == group) & allf.counted.astype(bool)] if len(allf) else allf
         fam = next((f for f in sub.family if f), "")
-        counts = sub.verdict.value_counts()
-        tally = ", ".join(f"{int(counts.get(v, 0))} {v}" for v in VERDICT_MARK if counts.get(v, 0))
+        statements = [s for s in register.statements if s.family == group]
+        if group in STATEMENT_FAMILIES and statements:
+            tally = statement_tally(statements, rows)
+        else:
+            counts = allf[allf.group == group].verdict.value_counts() if len(allf) else pd.Series(dtype=int)
+            tally = ", ".join(f"{int(counts.get(v, 0))} {v}" for v in VERDICT_MARK if counts.get(v, 0)) or "no claims"
         if not fam:  # no claim of the group has the runs its tests need
-            lines.append(f"- **{group}** ({what}): no hypotheses tested yet" + (f" ({tally})." if tally else "."))
+            lines.append(f"- **{group}** ({what}): no hypotheses tested yet" + (
+                f" ({tally})." if frames and tally != "no claims" else "."))
             continue
-        lines.append(f"- **{group}** ({what}): {fam} hypotheses, separately for the difference and the"
-                     f" equivalence tests. {tally or 'no claims'}.")
+        lines.append(f"- **{group}** ({what}): {fam} (difference and equivalence tests together). {tally}.")
     lines += ["", VERDICT_RULES, ""]
     for group, what in CLAIM_GROUPS.items():
-        rows = [(e, r) for e in entries for _, r in e.frame.iterrows() if r.group == group]
-        if not rows:
+        statements = [s for s in register.statements if s.family == group]
+        if group in STATEMENT_FAMILIES and statements:
+            lines += _statement_section(f"{what[0].upper() + what[1:]} ({group})", statements, rows, allf)
+            continue
+        claim_rows = [(e, r) for e in entries for _, r in e.frame.iterrows()
+                      if r.group == group and r.verdict != V.WITHDRAWN]
+        if not claim_rows:
             continue
         lines += [f"## {what[0].upper() + what[1:]} ({group})", "",
-                  "| Study | Claim | Paper | Paper's own evidence | SESOI | Ours: effect [95% CI] (n, p) | Verdict |"
-                  " Report |", "|---|---|---|---|---:|---|---|---|"]
-        lines += [_row(r, e.study, e.report) for e, r in rows]
+                  "| Study | Claim | SESOI | Ours: effect [95% CI] (n, p) | Verdict | Report |",
+                  "|---|---|---:|---|---|---|"]
+        lines += [_claim_row(r, e.study, e.report) for e, r in claim_rows]
         lines.append("")
+    lines += _withdrawn_section(entries)
+    if forest:
+        lines += ["## Every counted claim's effect", "",
+                  f"![Every counted claim's effect in units of its smallest effect of interest]({forest})", "",
+                  "Effects and 95% CIs divided by each claim's SESOI, signed so that the direction the claim"
+                  " expects is to the right (grey: ±1, effects too small to matter); diamonds: the paper's own"
+                  " effect per dataset; colour: the verdict.", ""]
     quiet = [e for e in entries if e.frame.empty]
     if quiet:
         lines += ["Studies with runs but no claims: " + ", ".join(f"[{e.study}]({e.report})" for e in quiet) + ".", ""]
     for caption, path in charts:
         lines += [f"## {caption}", "", f"![{caption}]({path})", ""]
-    stale = stale_studies(entries, current) if current else []
     if stale:
         lines += ["## Stale reports", "",
                   f"The trainer code here (fingerprint `{current}`, `harness/tracking/provenance.py`) is not the"
@@ -139,53 +227,6 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     return "\n".join(lines)
 
 
-def decide_all(entries: list[StudyClaims]) -> list[StudyClaims]:
-    """Every study's claims corrected together, one family per claim group."""
-    frames = [e.frame.assign(study=e.study) for e in entries if not e.frame.empty]
-    if not frames:
-        return entries
-    decided = V.decide(pd.concat(frames, ignore_index=True), label=" (every study)")
-    for e in entries:
-        if not e.frame.empty:
-            e.frame = decided[decided.study == e.study].drop(columns="study").reset_index(drop=True)
-    return entries
-
-
-def collect_study_claims(name: str, studies_dir: Path | None = None) -> StudyClaims | None:
-    """The study's claims evaluated on its latest invocation's runs; None when none finished."""
-    data = collect(name, None, studies_dir)
-    n_done = int((data.df.status == "FINISHED").sum())
-    if n_done == 0:
-        return None
-    frame = V.evaluate(add_differences(data.df), data.study.claims)
-    report = (Path(name) / "index.md").as_posix()
-    return StudyClaims(name, data.study.question, frame, report, n_done, ", ".join(data.code_versions()),
-                       tuple(data.trainer_fingerprints()))
-
-
-def committed_study_claims(name: str, root: Path, studies_dir: Path | None = None) -> StudyClaims | None:
-    """The study's claims evaluated on the runs of its report under ``root`` (its ``runs.csv``);
-    None when there is no report or none of its runs finished.
-
-    For a study the store has no runs of: the index then covers the reports as they are
-    committed, each made by the code its page names ("code at ..."), and the stale check
-    still compares their trainer fingerprints with this checkout's.
-    """
-    folder = Path(root) / name
-    if not (folder / "runs.csv").is_file():
-        return None
-    df = pd.read_csv(folder / "runs.csv")
-    n_done = int((df.status == "FINISHED").sum())
-    if n_done == 0:
-        return None
-    page = (folder / "index.md").read_text() if (folder / "index.md").is_file() else ""
-    code = m.group(1).strip() if (m := CODE_AT.search(page)) else ""
-    study = load_study(name, studies_dir)
-    frame = V.evaluate(add_differences(df), study.claims)
-    return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),
-                       n_done, code, tuple(trainer_fingerprints(df)), source="committed report")
-
-
 def refresh(entries: list[StudyClaims], current: str, studies_dir: Path | None = None) -> tuple[int, str]:
     """What ``make reports`` would run when some runs are not ``current``'s (its plan:
     ``currency.plan_frame``), and how long that takes here; (0, "") when all are current."""
@@ -200,17 +241,13 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
     """Write ``reports_root/index.md`` over every study in ``studies_dir``; return its path.
 
     Each study's claims come from its runs in the tracking store, or, when the store has none,
-    from its report already under ``reports_root`` (``committed_study_claims``).
+    from its report already under ``reports_root`` (``report.families``).
     """
     root = Path(reports_root)
     root.mkdir(parents=True, exist_ok=True)
-    entries, missing = [], []
-    for name in list_studies(studies_dir):
-        entry = collect_study_claims(name, studies_dir) or committed_study_claims(name, root, studies_dir)
-        (entries.append(entry) if entry is not None else missing.append(name))
-    entries = decide_all(entries)
-    current = checkout_fingerprint()
-    todo = refresh(entries, current, studies_dir)
+    forget()  # the index decides afresh from the runs as they are now
+    entries, missing = family_verdicts(root, studies_dir)
+    register = load_register(studies_dir)
     with_runs = {e.study for e in entries}
     charts = [(caption, f"{study}/{png}") for study, png, caption in CHARTS
               if study in with_runs and (root / study / png).is_file()]
@@ -218,10 +255,14 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
     allf = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     if len(allf):
         allf.to_csv(root / "claims.csv", index=False)
-    forest = forest_plot(allf, root / FOREST) if len(allf) else None
+    counted = allf[allf.counted.astype(bool)] if len(allf) else allf
+    forest = forest_plot(counted, root / FOREST) if len(counted) else None
     path = root / "index.md"
-    path.write_text(index_markdown(entries, charts, missing, current, FOREST if forest else "", todo))
+    current = checkout_fingerprint()
+    path.write_text(index_markdown(entries, charts, missing, current, FOREST if forest else "", register,
+                                   refresh(entries, current, studies_dir)))
     write_findings(root, studies_dir)  # every number FINDINGS.md may cite (report.findings)
     n = sum(len(e.frame) for e in entries)
-    echo(f"index: {n} claims over {len(entries)} studies with runs ({len(missing)} without) written to {path}")
+    echo(f"index: {len(register.statements)} statements and {n} claims over {len(entries)} studies with runs"
+         f" ({len(missing)} without) written to {path}")
     return path

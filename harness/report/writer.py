@@ -67,7 +67,7 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
     lines += [
         f"Runs: {c['n_runs']} planned {_grid(c['n_runs'], df)}; {c['n_finished']} finished, {c['n_failed']} failed"
         f" ({c['n_diverged']} diverged), {c['n_missing'] + c['n_running']} missing."
-        f" Baseline: `{prof.baseline}`. Expected runtime: {prof.estimate(c['n_runs'], prof.jobs)}.",
+        f" Baseline: `{prof.baseline}`. Expected runtime: {currency.expected(c['n_runs'], data.sel.profile, prof, prof.jobs)}.",
         "",
         "## Reproduce",
         "",

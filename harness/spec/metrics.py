@@ -50,7 +50,8 @@ class Metric:
     computed_by: str = ""  # the key of the ftgspp.image_metrics evaluator computing it (held-out images)
     unit: str = ""  # the unit its label ends with, e.g. "dB"
     phrase: str = ""  # how a sentence names it (default: the label)
-    smallest_effect: float | None = None  # smallest effect of interest, in its unit (None: not set)
+    smallest_effect: float | None = None  # smallest effect of interest, in its unit (None: no claim may test it)
+    sesoi_scale: str = ""  # the section of docs/sesoi.md that gives its rationale
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES or self.better not in (HIGHER, LOWER, NEITHER):
@@ -250,3 +251,39 @@ for _m in (
     Metric("system/*", source=SYSTEM, claimable=False, deterministic=False),  # MLflow's system metrics sampler
 ):
     register(_m)
+
+
+# --- smallest effects of interest: one per metric, on the metric's own scale ---------------
+# What difference in the metric matters to a user of the method, fixed once per metric with
+# its rationale in docs/sesoi.md (the section named second) — never a paper's estimate of the
+# effect being tested. Fixed on SESOI_FIXED, after the committed runs (issue 44).
+SESOI_FIXED = "2026-11-27"
+SD_RATIO_SESOI = 1.5  # variance claims: SD(a)/SD(b) within [1/1.5, 1.5] is too small to matter
+SD_RATIO_SCALE = "sd-ratio"
+SMALLEST_EFFECTS: dict[str, tuple[float, str]] = {
+    **{m: (0.2, "psnr") for m in ("psnr", "psnr_cc", "train_psnr", "psnr_cc_gap")},
+    **{m: (0.005, "ssim") for m in ("ssim1", "ssim2", "gap_ssim")},
+    **{m: (0.0025, "ssim") for m in ("dssim1", "dssim2", "gap_dssim")},
+    **{m: (0.005, "lpips") for m in ("lpips_alex", "lpips_vgg", "lpips_alex_01", "lpips_vgg_01", "gap_lpips_alex",
+                                     "gap_lpips_vgg")},
+    **{m: (0.05, "lifetimes") for m in ("lifetime_long_on_static", "lifetime_short_on_dynamic",
+                                        "lifetime_median_fraction", "lifetime_partition_contrast",
+                                        "lifetime_short_share_dynamic", "lifetime_short_share_static",
+                                        "lifetime_short_share_transient", "lifetime_transient_contrast")},
+    **{m: (0.05, "motion") for m in ("motion_epe_dynamic", "motion_leak_static")},
+    "motion_role_switch": (0.05, "role-switch"),
+    **{m: (0.002, "flicker") for m in ("flicker_static", "flicker_static_gt")},
+}
+for _name, (_value, _scale) in SMALLEST_EFFECTS.items():
+    register(replace(_REGISTRY[_name], smallest_effect=_value, sesoi_scale=_scale))
+
+
+def sesoi(metric: str, test: str = "mean") -> tuple[float, str]:
+    """The smallest effect of interest of a claim on ``metric`` (an SD ratio for a variance test)
+    and the section of docs/sesoi.md that gives its rationale; ValueError when it has none."""
+    if test == "variance":
+        return SD_RATIO_SESOI, SD_RATIO_SCALE
+    m = lookup(metric)
+    if m.smallest_effect is None:
+        raise ValueError(f"metric '{metric}' has no smallest effect of interest (harness/spec/metrics.py)")
+    return m.smallest_effect, m.sesoi_scale

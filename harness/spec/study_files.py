@@ -27,15 +27,16 @@ from typing import Any
 import yaml
 
 from ftgspp.errors import InputError
-from harness.spec import structured
-from harness.spec.metrics import claimable
+from harness.spec import paper_register, structured
+from harness.spec.metrics import claimable, sesoi
+from harness.spec.paper_register import Register
 from harness.spec.study_schema import (
     EXPECTATIONS,
     SYNTH_ROOT,
     ClaimSpec,
     Comparison,
+    Expectation,
     Ladder,
-    PaperClaim,
     ProfileSpec,
     StudyScene,
     StudySpec,
@@ -54,6 +55,18 @@ def list_studies(studies_dir: Path | None = None) -> list[str]:
     """Names of the study files (``_*.yaml`` files are shared data, not studies)."""
     root = Path(studies_dir or STUDIES_DIR)
     return sorted(p.stem for p in root.glob("*.yaml") if not p.name.startswith("_"))
+
+
+def load_register(studies_dir: Path | None = None) -> Register:
+    """The paper register (``studies/_paper.yaml``, ``spec.paper_register``), checked against
+    every study file; one ``InputError`` at the first problem."""
+    root = Path(studies_dir or STUDIES_DIR)
+    if not (root / paper_register.REGISTER_FILE).is_file():  # a folder of one's own studies: no paper register
+        return Register()
+    register = paper_register.load_register(root)
+    studies = {name: load_study(name, root) for name in list_studies(root)}
+    paper_register.check_register(register, studies, str(root / paper_register.REGISTER_FILE))
+    return register
 
 
 def load_study(name: str, studies_dir: Path | None = None) -> StudySpec:
@@ -242,18 +255,9 @@ def _variance(v: VarianceSpec | None, where: str, variants: set[str]) -> Varianc
     return v
 
 
-def _paper(p: PaperClaim | None, where: str) -> PaperClaim | None:
-    if p is None:
-        return None
-    for r in p.rows:
-        require(r.n is None or r.n >= 2, f"{where}.rows.{r.dataset}.n", "needs at least 2 runs")
-        require((r.a_std is None) == (r.b_std is None) or r.b is None, f"{where}.rows.{r.dataset}",
-                "give both a_std and b_std, or neither")
-    return dataclasses.replace(p, statement=" ".join(p.statement.split()))
-
-
 def _claims(claims: tuple[ClaimSpec, ...], where: str, variants: set[str]) -> tuple[ClaimSpec, ...]:
-    """Check a study's ``claims:`` (variants: those of any profile)."""
+    """Check a study's ``claims:`` (variants: those of any profile) and fill in each claim's
+    smallest effect of interest from the metric registry."""
     out: list[ClaimSpec] = []
     for c in claims:
         at = f"{where}.{c.id}"
@@ -261,28 +265,51 @@ def _claims(claims: tuple[ClaimSpec, ...], where: str, variants: set[str]) -> tu
                 "claim ids must be unique names")
         require(c.expect in EXPECTATIONS[c.test], f"{at}.expect",
                 f"'{c.expect}' is not an expectation of a {c.test} test (use {', '.join(EXPECTATIONS[c.test])})")
-        require(c.sesoi > 0, f"{at}.sesoi", "the smallest effect of interest must be positive")
         for key, metric in (("metric", c.metric), ("versus", c.versus)):
             require(metric in claimable() or (key == "versus" and not metric), f"{at}.{key}",
                     f"unknown metric '{metric}' (use {', '.join(claimable())})")
-        for v in [c.a, c.b, *(v for w in c.contrasts for v, _ in w)]:
-            require(not v or v in variants, at, f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
-        if c.test == Comparison.decoupled:
-            require(bool(c.versus), at, "a decoupled claim needs 'versus' (the metric that differs)")
+        for v in c.arms():
+            require(v in variants, at, f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
+        if c.test in (Comparison.decoupled, Comparison.dissociated):
+            require(bool(c.versus), at, f"a {c.test} claim needs 'versus' (the metric that differs)")
         elif c.test == Comparison.contrast:
             require(bool(c.contrasts) and all(isinstance(k, (int, float)) for w in c.contrasts for _, k in w)
                     and all(abs(sum(k for _, k in w)) < 1e-9 for w in c.contrasts), f"{at}.contrasts",
                     "needs maps of variant -> number weights that each sum to 0")
+        elif c.test == Comparison.interaction and c.pairs:
+            require(len(c.pairs) == len(c.scenes) and all(len(p) == 2 for p in c.pairs), f"{at}.pairs",
+                    "needs one [a, b] per scene, in the order of scenes")
+            require(not c.a and not c.b, at, "an interaction with pairs names no a or b")
         else:
             require(bool(c.a), f"{at}.a", f"a {c.test} claim needs variant 'a'")
-            require(bool(c.b) or c.test == Comparison.mean, f"{at}.b", f"a {c.test} claim needs variant 'b'")
+            require(bool(c.b) or c.test in (Comparison.mean, Comparison.spread), f"{at}.b",
+                    f"a {c.test} claim needs variant 'b'")
         if c.test == Comparison.interaction:
             require(len(c.scenes) == 2, f"{at}.scenes", "an interaction needs exactly two scenes")
-        if c.requires is not None:
-            metric, _ = c.requires
-            require(metric in claimable(), f"{at}.requires.metric", f"unknown metric '{metric}'")
+        if c.expect == Expectation.equivalent:
+            require(c.test in (Comparison.mean, Comparison.interaction, Comparison.variance), f"{at}.expect",
+                    "an equivalence claim compares two variants' means, spreads or an interaction")
+        for i, r in enumerate(c.requires):
+            require(r.metric in claimable(), f"{at}.requires[{i}].metric", f"unknown metric '{r.metric}'")
+            require((r.min is None) != (not r.above), f"{at}.requires[{i}]", "give either min or above")
+            if r.above:
+                require(r.above in claimable() or _is_number(r.above), f"{at}.requires[{i}].above",
+                        f"'{r.above}' is neither a metric nor a number")
+        try:
+            value, scale = sesoi(c.metric, c.test)
+        except ValueError as err:
+            raise InputError(f"{at}.metric", f"{err}; a claim needs one (docs/sesoi.md)") from None
         out.append(dataclasses.replace(
-            c, statement=" ".join(c.statement.split()), sesoi_source=" ".join(c.sesoi_source.split()),
-            paper=_paper(c.paper, f"{at}.paper"),
+            c, statement=" ".join(c.statement.split()), withdrawn=" ".join(c.withdrawn.split()),
+            registered=" ".join(c.registered.split()), history=tuple(" ".join(h.split()) for h in c.history),
+            sesoi=value, sesoi_source=f"docs/sesoi.md, {scale}",
             contrasts=tuple(tuple((v, float(k)) for v, k in w) for w in c.contrasts)))
     return tuple(out)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

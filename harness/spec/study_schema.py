@@ -78,7 +78,9 @@ class Comparison(StrEnum):
     variance = "variance"
     interaction = "interaction"
     contrast = "contrast"
-    decoupled = "decoupled"
+    decoupled = "decoupled"  # some pair equivalent in the metric, different in ``versus``
+    dissociated = "dissociated"  # some pair: the metric not worse (non-inferior), ``versus`` worse
+    spread = "spread"  # one variant's run-to-run SD, described beside the paper's (no test)
 
 
 class Expectation(StrEnum):
@@ -89,7 +91,9 @@ class Expectation(StrEnum):
     lower = "lower"
     not_higher = "not_higher"  # equivalent counts as reproduced
     not_lower = "not_lower"
-    exists = "exists"  # decoupled claims
+    equivalent = "equivalent"  # "≈": reproduced by TOST at ±SESOI, contradicted outside it
+    exists = "exists"  # decoupled and dissociated claims
+    describe = "describe"  # spread: a description, no test
 
 
 class ClaimGroup(StrEnum):
@@ -110,10 +114,12 @@ class Pairing(StrEnum):
 
 
 PROFILES = tuple(p.value for p in ProfileName)  # plain strings (argparse choices)
-DIRECTIONS = (Expectation.higher, Expectation.lower, Expectation.not_higher, Expectation.not_lower)
+DIRECTIONS = (Expectation.higher, Expectation.lower, Expectation.not_higher, Expectation.not_lower,
+              Expectation.equivalent)
 EXPECTATIONS = {Comparison.mean: DIRECTIONS, Comparison.variance: DIRECTIONS, Comparison.interaction: DIRECTIONS,
                 Comparison.contrast: (Expectation.higher, Expectation.lower),
-                Comparison.decoupled: (Expectation.exists,)}
+                Comparison.decoupled: (Expectation.exists,), Comparison.dissociated: (Expectation.exists,),
+                Comparison.spread: (Expectation.describe,)}
 CLAIM_GROUPS = {ClaimGroup.paper: "the paper's method claims", ClaimGroup.extension: "this project's own extensions",
                 ClaimGroup.convention: "metric conventions"}
 
@@ -223,71 +229,47 @@ class TableSpec:
 
 
 @dataclass(frozen=True)
-class PaperRow:
-    """What the paper reports for one dataset: the compared values, their spread and runs.
-
-    ``a`` and ``b`` are the paper's values of the claim's two sides (``b`` None: ``a`` is
-    the effect itself); ``a_std``/``b_std`` with ``n`` runs per arm where the paper gives a
-    spread. Where it gives none, ``run_sd`` is the paper's own run-to-run SD on that dataset
-    (``run_sd_n`` runs; e.g. from its colour-correction stability table), used for both arms.
-    ``scene``: our synthetic scene that stands in for the dataset.
-    """
-
-    dataset: str
-    a: float | None = None
-    b: float | None = None
-    a_std: float | None = None
-    b_std: float | None = None
-    n: int | None = None
-    run_sd: float | None = None
-    run_sd_n: int | None = None
-    scene: str = ""
-    note: str = ""
-
-    @property
-    def effect(self) -> float | None:
-        """The paper's effect a − b (or a), None when it gives no number."""
-        if self.a is None:
-            return None
-        return self.a - (self.b or 0.0)
-
-
-@dataclass(frozen=True)
-class PaperClaim:
-    """The paper's statement (paraphrased, whitespace normalised), where it makes it, and its
-    numbers per dataset."""
-
-    statement: str
-    source: str
-    rows: tuple[PaperRow, ...] = ()
-
-
-@dataclass(frozen=True)
 class Requires:
-    """How a claim's ``requires:`` is written: ``{metric: relocated_total, min: 1000}``."""
+    """What must be present on a claim's runs for its mechanism to be exercised (else the
+    verdict is "not exercised"): ``{metric: relocated_total, min: 1000}`` — the median over the
+    claim's runs reaches ``min``; or ``{metric: flicker_static, above: flicker_static_gt}`` — on
+    some arm of the claim, the median of ``metric`` minus its ground-truth level (another metric,
+    or a number such as ``"0"``) reaches the metric's smallest effect of interest: the artefact
+    the claim is about shows at all."""
 
     metric: str
-    min: float
+    min: float | None = None
+    above: str = ""
 
 
 @dataclass(frozen=True)
 class ClaimSpec:
-    """One statement, as a test on the study's runs (``analysis.claim_tests``).
+    """One claim, as a test on the study's runs (``analysis.claim_tests``).
 
     ``test``: ``mean`` (variant ``a`` against ``b``, or against zero when ``b`` is empty),
     ``variance`` (spread of ``a`` against ``b``), ``interaction`` (the ``a`` − ``b``
-    difference on ``scenes[0]`` against the one on ``scenes[1]``), ``contrast`` (every
-    weighted sum of variants in ``contrasts`` per (scene, seed); all must hold: "CC gives the
-    largest gain") or ``decoupled`` (on some scene, two variants are equivalent in ``metric``
-    within ±``sesoi`` yet differ in ``versus``: "clean RGB does not imply clean motion").
+    difference on ``scenes[0]`` against the one on ``scenes[1]``; ``pairs`` gives each scene its
+    own (a, b) where the two scenes run different variants), ``contrast`` (every weighted sum of
+    variants in ``contrasts`` per (scene, seed); all must hold: "CC gives the largest gain"),
+    ``decoupled`` (on some scene, two variants are equivalent in ``metric`` within ±SESOI yet
+    differ in ``versus``), ``dissociated`` (on some scene, one variant is not worse than another
+    in ``metric`` — non-inferior at the SESOI — yet worse in ``versus``: "clean RGB does not imply
+    clean motion") or ``spread`` (variant ``a``'s run-to-run SD, described beside the paper's).
     ``expect``: ``higher`` / ``lower`` (a relative to b), ``not_higher`` / ``not_lower``
-    (equivalent counts as reproduced), ``exists`` (decoupled); ``EXPECTATIONS`` per test.
-    ``sesoi``: the smallest effect of interest in the effect's units, fixed in the study file
-    before the runs (``sesoi_source`` says where it comes from); ``group`` names the family
-    the claim is corrected in (``CLAIM_GROUPS``). ``requires``: a metric whose median over the
-    claim's runs must reach a value for the claim's mechanism to be present on the scene (else
-    "not exercised"). ``statement`` (file key ``claim``) and ``sesoi_source`` are whitespace
-    normalised.
+    (equivalent counts as reproduced), ``equivalent`` ("≈": TOST reproduces, the minimal-effect
+    test contradicts), ``exists`` (decoupled, dissociated), ``describe`` (spread);
+    ``EXPECTATIONS`` per test.
+    ``sesoi``: the smallest effect of interest of the claim's metric (or of an SD ratio for
+    ``variance``), fixed once per metric in the metric registry (``harness/spec/metrics.py``,
+    rationale in docs/sesoi.md) and filled in by the loader; a claim never sets its own.
+    ``group`` names the family the claim is corrected in (``CLAIM_GROUPS``); a ``paper`` claim
+    belongs to a statement of the paper register (``studies/_paper.yaml``), which says whether it
+    decides the statement or is evidence shown inside its row. ``requires``: what must be present
+    for the claim's mechanism to be exercised (``Requires``). ``registered``: empty when the claim
+    was written before its runs; else when and why it was written or rewritten after them (its
+    verdict is marked). ``withdrawn``: why it no longer counts — a registered claim is never
+    deleted after its runs, its result stays in view. ``history``: what changed and why.
+    ``statement`` (file key ``claim``) is whitespace normalised.
     """
 
     id: str
@@ -300,16 +282,25 @@ class ClaimSpec:
     scenes: tuple[str, ...] = ()
     pair: Pairing = Pairing.seed
     versus: str = ""
-    sesoi: float = key(default=0.1, required=True)
-    sesoi_source: str = key(default="", required=True)
     group: ClaimGroup = ClaimGroup.paper
-    paper: PaperClaim | None = None
     # each a map variant -> weight summing to 0 (file: [{cc: 1, baseline: -1}])
     contrasts: tuple[tuple[tuple[str, float], ...], ...] = key(
         default=(), written=list[dict[str, Any]], read=lambda weights: tuple(map(pairs, weights)))
-    requires: tuple[str, float] | None = key(default=None, written=Requires | None,
-                                             read=lambda r: (r.metric, r.min))
+    # interaction: (a, b) per scene, in the order of ``scenes`` (file: [[stride1, stride5], [stride2, stride4]])
+    pairs: tuple[tuple[str, str], ...] = key(default=(), written=list[list[str]],
+                                             read=lambda rows: tuple(tuple(r) for r in rows))
+    requires: tuple[Requires, ...] = ()  # all must be present (file: a list of {metric, min} / {metric, above})
     needs: str = ""  # real data the claim needs; "not tested" rows say so
+    registered: str = ""  # "": written before its runs; else when and why it was written after them
+    withdrawn: str = ""  # why it no longer counts (its result stays in view)
+    history: tuple[str, ...] = ()  # what changed since it was first registered, and why
+    sesoi: float = derived(0.1)  # from the metric registry (the loader fills it in)
+    sesoi_source: str = derived("")
+
+    def arms(self) -> tuple[str, ...]:
+        """Every variant the claim compares, in order of first mention."""
+        named = [self.a, self.b, *(v for w in self.contrasts for v, _ in w), *(v for p in self.pairs for v in p)]
+        return tuple(dict.fromkeys(v for v in named if v))
 
 
 @dataclass(frozen=True)

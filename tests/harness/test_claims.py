@@ -13,25 +13,14 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from claimdata import claim, runs
 from scipy import stats
 
 from ftgspp.errors import InputError
 from harness.analysis import claim_tests as C, stats as S, verdicts as V
+from harness.spec.paper_register import PaperRow, Register, Statement
 from harness.spec.study_files import load_study
-from harness.spec.study_schema import ClaimSpec, PaperClaim, PaperRow
-
-
-def runs(values: dict[tuple[str, str], np.ndarray], metric: str = "psnr") -> pd.DataFrame:
-    """A per-run frame like ``report.results.runs_frame``: {(variant, scene): per-seed values}."""
-    rows = [{"variant": v, "scene": s, "seed": i, "status": "FINISHED", metric: float(x)}
-            for (v, s), xs in values.items() for i, x in enumerate(xs)]
-    return pd.DataFrame(rows)
-
-
-def claim(**kw: object) -> ClaimSpec:
-    base = {"id": "c", "statement": "s", "metric": "psnr", "test": "mean", "expect": "higher", "a": "cc",
-            "b": "baseline", "sesoi": 0.1}
-    return ClaimSpec(**{**base, **kw})
+from harness.spec.study_schema import ClaimSpec, Requires
 
 
 def verdicts(df: pd.DataFrame, claims: list[ClaimSpec]) -> pd.DataFrame:
@@ -54,12 +43,15 @@ def test_one_family_across_studies_not_one_per_study():
     base = 30 + rng.normal(0, 0.3, 6)
     df = runs({("baseline", "s"): base, ("cc", "s"): base + 0.25 + rng.normal(0, 0.08, 6)})
     one = V.evaluate(df, [claim(id="x")])
-    alone = V.decide(one)
-    together = V.decide(pd.concat([one] * 5, ignore_index=True))  # the same claim in five studies
-    assert together.p_adj[0] == pytest.approx(min(1.0, 5 * one.p[0]))  # Holm's first step over 5
-    assert alone.p_adj[0] == pytest.approx(one.p[0]) and together.family[0].endswith("Holm over 5")
+    alone = V.decide(one)  # one claim: its difference and its equivalence test, one Holm over 2
+    together = V.decide(pd.concat([one] * 5, ignore_index=True))  # the same claim in five studies: 10
+    p, p_tost = float(one.p[0]), float(one.p_tost[0])
+    assert alone.p_adj[0] == pytest.approx(S.union_adjust([p], [p_tost])[0][0])
+    assert together.p_adj[0] == pytest.approx(S.family_adjust([p] * 5 + [p_tost] * 5)[0])
+    assert together.p_adj[0] == pytest.approx(min(1.0, 10 * p))  # Holm's first step over 10 (p < p_tost)
+    assert alone.family[0].endswith("Holm over 2 hypotheses") and together.family[0].endswith("over 10 hypotheses")
     ext = V.decide(pd.concat([one, one.assign(group="extension")], ignore_index=True))
-    assert ext.p_adj.tolist() == pytest.approx([one.p[0]] * 2)  # another group is another family
+    assert ext.p_adj.tolist() == pytest.approx([alone.p_adj[0]] * 2)  # another group is another family
 
 
 def test_planted_effect_is_reproduced_and_reverse_effect_contradicted():
@@ -90,7 +82,8 @@ def test_a_planted_effect_inside_the_sesoi_is_equivalent():
     upper = stats.ttest_1samp(d, 0.1, alternative="less").pvalue
     assert row.p_tost == pytest.approx(max(lower, upper))
     small = verdicts(df, [claim(sesoi=0.01)]).iloc[0]  # the same runs, a SESOI below the effect: a real gain
-    assert small.verdict == V.REPRODUCED
+    assert small.verdict != V.EQUIVALENT and small.p < 0.05  # (one Holm over its two tests: p doubled)
+    assert small.p_adj == pytest.approx(min(1.0, 2 * small.p))
     not_higher = verdicts(df, [claim(sesoi=0.1, expect="not_higher")]).iloc[0]
     assert not_higher.verdict == V.REPRODUCED  # "denser is not better": equivalence reproduces it
 
@@ -139,8 +132,10 @@ def test_prospective_power_is_for_the_sesoi_not_the_observed_effect():
     cc = base + 0.05 + rng.normal(0, 0.2, 6)
     row = verdicts(runs({("baseline", "s"): base, ("cc", "s"): cc}), [claim(sesoi=0.3)]).iloc[0]
     sd = float(np.std(cc - base, ddof=1))
-    assert row.verdict == V.INCONCLUSIVE and row.n_needed == S.n_for_t(0.3, sd, paired=True)
-    assert row.n_needed != S.n_for_t(abs(row.effect), sd, paired=True)  # not the observed effect's n
+    # at the α the claim faces: its family holds 2 hypotheses (difference and equivalence), α/2
+    assert row.verdict == V.INCONCLUSIVE and row.n_needed == S.n_for_t(0.3, sd, paired=True, alpha=0.025)
+    assert row.n_needed > S.n_for_t(0.3, sd, paired=True)  # a stricter α needs more runs
+    assert row.n_needed != S.n_for_t(abs(row.effect), sd, paired=True, alpha=0.025)  # not the observed effect's n
 
 
 def test_brown_forsythe_power_by_simulation_matches_the_audit_and_f_overstates_it():
@@ -166,9 +161,11 @@ def test_paper_side_evidence_is_welch_from_summary_statistics():
     small = S.paper_evidence(32.64, 32.62, None, None, None, run_sd=0.22, run_sd_n=10)
     assert small.p > 0.5 and "run-to-run SD" in small.how  # a 0.02 dB gap is within the paper's own spread
     assert np.isnan(S.paper_evidence(1.0, 0.0, None, None, None).p)
-    paper = PaperClaim("CC raises PSNR", "table", (PaperRow("DyNeRF", 32.81, 32.47, 0.08, 0.22, 10),))
+    register = Register((Statement("s5_cc", "secret 5", "CC raises PSNR", "table", decided_by="st.c",
+                                   numbers=(PaperRow("DyNeRF", 32.81, 32.47, 0.08, 0.22, 10),)),))
     row = V.evaluate(runs({("baseline", "s"): [30.0, 30.1, 29.9], ("cc", "s"): [30.2, 30.3, 30.1]}),
-                     [claim(paper=paper)]).iloc[0]
+                     [claim()], "st", register).iloc[0]
+    assert row.role == "decides" and row.statement_id == "s5_cc"
     assert "DyNeRF: 32.47 ± 0.22 → 32.81 ± 0.08 (10 runs)" in row.paper_numbers
     assert f"p = {ref.pvalue:.2g}" in row.paper_evidence and "distinguishable" in row.paper_evidence
 
@@ -177,7 +174,7 @@ def test_variance_claim_uses_brown_forsythe_equal_to_scipy_and_its_definition():
     rng = np.random.default_rng(3)
     a, b = rng.normal(30, 0.02, 12), rng.normal(30, 0.5, 12)
     df = runs({("baseline", "studio"): b, ("cc", "studio"): a})
-    row = verdicts(df, [claim(test="variance", expect="lower", sesoi=2.0)]).iloc[0]
+    row = verdicts(df, [claim(test="variance", expect="lower", sesoi=2.0, pair="none")]).iloc[0]
     assert row.method.startswith("Brown–Forsythe") and row.stat_name == "W"
     ref = stats.levene(a, b, center="median")
     assert row.statistic == pytest.approx(ref.statistic) and row.p == pytest.approx(ref.pvalue)
@@ -187,7 +184,8 @@ def test_variance_claim_uses_brown_forsythe_equal_to_scipy_and_its_definition():
     assert row.effect == pytest.approx(a.std(ddof=1) / b.std(ddof=1))
     assert row.ci_low <= row.effect <= row.ci_high
     assert row.verdict == V.REPRODUCED  # cc's spread is lower, as claimed
-    flipped = V.evaluate(df, [claim(test="variance", expect="higher", a="baseline", b="cc", sesoi=2.0)]).iloc[0]
+    flipped = V.evaluate(df, [claim(test="variance", expect="higher", a="baseline", b="cc", sesoi=2.0,
+                                    pair="none")]).iloc[0]
     share = 1 - a.var(ddof=1) / b.var(ddof=1)  # fixed vs free init: the initialisation's share of the variance
     assert f"{share:.0%} of baseline's variance is not in cc" in flipped.detail
 
@@ -264,7 +262,7 @@ def test_missing_runs_are_not_tested_and_an_absent_mechanism_not_exercised():
     df["relocated_total"] = 60.0
     out = verdicts(df, [claim(id="ok"), claim(id="gone", a="free_init"), claim(id="nowhere", scenes=("fast",)),
                         claim(id="nometric", metric="flicker_static"),
-                        claim(id="idle", requires=("relocated_total", 1000.0)),
+                        claim(id="idle", requires=(Requires("relocated_total", 1000.0),)),
                         claim(id="outdoor", scenes=("actor1_4",), needs="ENeRF-Outdoor (ENERF_OUTDOOR_ROOT)")])
     assert out.n[0] == "5 pairs"  # the failed run's pair is dropped, not imputed
     assert list(out.verdict) == [V.REPRODUCED, V.NOT_TESTED, V.NOT_TESTED, V.NOT_TESTED, V.NOT_EXERCISED,
@@ -272,7 +270,7 @@ def test_missing_runs_are_not_tested_and_an_absent_mechanism_not_exercised():
     assert out.note[5] == "needs real data: ENeRF-Outdoor (ENERF_OUTDOOR_ROOT)"
     assert "free_init" in out.note[1] and "fast" in out.note[2] and "flicker_static" in out.note[3]
     assert "median `relocated_total` 60 < 1000" in out.note[4]
-    assert out.p_adj[0] == pytest.approx(out.p[0])  # one tested claim: no correction
+    assert out.p_adj[0] == pytest.approx(min(1.0, 2 * out.p[0]))  # one tested claim: its two tests, one Holm
 
 
 # --------------------------------------------------------------------------- schema
@@ -286,20 +284,19 @@ def _study_with(tmp_path: Path, claims: list[dict]) -> Path:
 
 
 GOOD = {"id": "cc_mean", "claim": "CC raises PSNR.", "metric": "psnr", "test": "mean", "a": "cc", "b": "baseline",
-        "expect": "higher", "sesoi": 0.34, "sesoi_source": "the paper's DyNeRF effect"}
-PAPER = {"statement": "CC raises the mean PSNR.", "source": "stability table",
-         "rows": [{"dataset": "DyNeRF", "a": 32.81, "a_std": 0.08, "b": 32.47, "b_std": 0.22, "n": 10}]}
+        "expect": "higher"}
 
 
-def test_claims_load_as_data(tmp_path: Path):
-    study = load_study("toy", _study_with(tmp_path, [{**GOOD, "paper": PAPER},
-                                                     {**GOOD, "id": "spread", "test": "variance", "expect": "lower",
-                                                      "sesoi": 2.75, "group": "extension"}]))
+def test_claims_load_as_data_with_the_metric_registrys_smallest_effect(tmp_path: Path):
+    from harness.spec.metrics import SD_RATIO_SESOI, lookup
+
+    study = load_study("toy", _study_with(tmp_path, [GOOD, {**GOOD, "id": "spread", "test": "variance",
+                                                            "expect": "lower", "group": "extension"}]))
     assert [c.id for c in study.claims] == ["cc_mean", "spread"]
     first, second = study.claims
-    assert first.pair == "seed" and first.group == "paper" and first.sesoi == 0.34
-    assert first.paper.rows[0].effect == pytest.approx(0.34) and first.paper.rows[0].n == 10
-    assert second.group == "extension" and second.paper is None
+    assert first.pair == "seed" and first.group == "paper"
+    assert first.sesoi == lookup("psnr").smallest_effect and first.sesoi_source == "docs/sesoi.md, psnr"
+    assert second.group == "extension" and second.sesoi == SD_RATIO_SESOI  # a variance claim: an SD ratio
 
 
 @pytest.mark.parametrize("change, words", [
@@ -307,9 +304,12 @@ def test_claims_load_as_data(tmp_path: Path):
     ({"a": "nosuch"}, "unknown variant 'nosuch'"),
     ({"test": "anova"}, "unknown comparison 'anova'"),
     ({"expect": "exists"}, "not an expectation of a mean test"),
-    ({"sesoi": -1}, "must be positive"),
+    ({"sesoi": 0.34}, "unknown key(s) sesoi"),  # fixed per metric in the registry, never per claim
+    ({"metric": "n_gaussians"}, "no smallest effect of interest"),
     ({"group": "mine"}, "unknown group 'mine'"),
-    ({"sesoi_source": None}, "sesoi_source"),
+    ({"test": "interaction", "pairs": [["cc", "baseline"]], "a": "", "b": "", "scenes": ["easy", "hard"]},
+     "one [a, b] per scene"),
+    ({"requires": [{"metric": "flicker_static"}]}, "give either min or above"),
     ({"test": "interaction", "scenes": ["easy"]}, "exactly two scenes"),
     ({"colour": 1}, "unknown key(s) colour"),
 ])
@@ -339,12 +339,15 @@ def test_every_secret_states_its_claims():
     for name in names:
         for c in load_study(name).claims:
             assert c.sesoi > 0 and c.sesoi_source, f"{name}.{c.id} states no smallest effect of interest"
-    with_numbers = [c for n in ("secret4", "secret5_cc", "ablation") for c in load_study(n).claims
-                    if c.paper and any(r.a is not None or r.a_std is not None for r in c.paper.rows)]
-    assert len(with_numbers) >= 8  # the paper's numbers, as data
-    assert "decoupled" in tests["secret2"] and "interaction" in tests["secret3"]
+    from harness.spec.study_files import load_register
+
+    with_numbers = [s for s in load_register().statements
+                    if any(r.a is not None or r.a_std is not None for r in s.numbers)]
+    assert len(with_numbers) >= 12  # the paper's numbers, as data
+    assert "dissociated" in tests["secret2"] and "interaction" in tests["secret3"]
     assert {"mean", "variance"} <= tests["secret5_cc"] and "variance" in tests["secret5"]
     # colour correction is judged per scene: static gains and exposure drift apart
     assert {c.scenes for c in load_study("secret5_cc").claims} == {("studio",), ("exposure_drift",)}
+    assert "variance" in tests["secret5"] and "spread" in tests["secret5"]
     per_scene = [c for c in load_study("ablation").claims if c.scenes == ("color_shift",)]
     assert per_scene and per_scene[0].a == "flow_gate_cc" and per_scene[0].b == "flow_gate"

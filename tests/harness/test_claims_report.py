@@ -13,8 +13,10 @@ from fakes import fake_generate, fake_train
 
 from harness.analysis import verdicts as V
 from harness.report.claims_table import claims_latex, claims_markdown
+from harness.report.fmt import p_text
 from harness.report.index import StudyClaims, decide_all, index_markdown
-from harness.spec.study_schema import ClaimSpec, PaperClaim, PaperRow
+from harness.spec.paper_register import PaperRow, Register, Statement
+from harness.spec.study_schema import ClaimSpec
 
 MINI = {
     "name": "mini",
@@ -25,15 +27,13 @@ MINI = {
     "plots": [],
     "claims": [
         {"id": "cc_mean", "claim": "CC raises PSNR.", "metric": "psnr", "test": "mean", "a": "cc", "b": "baseline",
-         "expect": "higher", "pair": "none", "sesoi": 0.3, "sesoi_source": "the paper's effect",
-         "paper": {"statement": "CC helps.", "source": "stability table",
-                   "rows": [{"dataset": "DyNeRF", "a": 32.81, "a_std": 0.08, "b": 32.47, "b_std": 0.22, "n": 10}]}},
+         "expect": "higher", "pair": "none"},
         {"id": "cc_spread", "claim": "CC lowers the spread.", "metric": "psnr", "test": "variance", "a": "cc",
-         "b": "baseline", "expect": "lower", "sesoi": 2.0, "sesoi_source": "default ratio"},
+         "b": "baseline", "expect": "lower"},
         {"id": "motion", "claim": "Not logged by the fake.", "metric": "flicker_static", "test": "mean", "a": "cc",
-         "b": "baseline", "expect": "lower", "group": "extension", "sesoi": 0.01, "sesoi_source": "default"},
+         "b": "baseline", "expect": "lower", "group": "extension"},
         {"id": "psnr_ssim", "claim": "Some pair has equal PSNR but different SSIM.", "metric": "psnr",
-         "versus": "ssim1", "test": "decoupled", "expect": "exists", "sesoi": 0.1, "sesoi_source": "default"},
+         "versus": "ssim1", "test": "decoupled", "expect": "exists"},
     ],
     "profiles": {
         "quick": {"seeds": 3, "overrides": ["profile=smoke"], "run_seconds": 5, "command": "study run mini",
@@ -49,23 +49,30 @@ def frame() -> pd.DataFrame:
     df = pd.DataFrame([{"variant": v, "scene": "studio", "seed": i, "status": "FINISHED", "psnr": x}
                        for v, xs in (("baseline", base), ("cc", base + 0.5 + rng.normal(0, 0.05, 6)),
                                      ("free", base[::-1] + 0.05)) for i, x in enumerate(xs)])
-    paper = PaperClaim("CC helps.", "table", (PaperRow("DyNeRF", 32.81, 32.47, 0.08, 0.22, 10),))
-    claims = [ClaimSpec("cc_mean", "CC raises the mean PSNR.", "psnr", "mean", "higher", "cc", "baseline", sesoi=0.3,
-                        paper=paper),
+    claims = [ClaimSpec("cc_mean", "CC raises the mean PSNR.", "psnr", "mean", "higher", "cc", "baseline", sesoi=0.3),
               ClaimSpec("free", "Free init changes PSNR.", "psnr", "mean", "higher", "free", "baseline", pair="none",
                         sesoi=0.05),
               ClaimSpec("gone", "Needs a variant we did not run.", "psnr", "mean", "higher", "nosuch", "baseline")]
-    return V.decide(V.evaluate(df, claims))
+    return V.decide(V.evaluate(df, claims, "secret5", REGISTER))
+
+
+REGISTER = Register((
+    Statement("s_cc", "secret 5", "CC helps.", "stability table", decided_by="secret5.cc_mean",
+              numbers=(PaperRow("DyNeRF", 32.81, 32.47, 0.08, 0.22, 10),)),
+    Statement("s_free", "secret 5", "Free init changes PSNR.", "table", decided_by="secret5.free"),
+    Statement("s_gone", "secret 5", "Something we did not run.", "table", decided_by="secret5.gone"),
+    Statement("s_real", "outdoor", "Needs real data.", "outdoor table", not_tested="needs real data (REAL_ROOT)"),
+))
 
 
 def test_claims_markdown_and_latex_show_effect_ci_sesoi_p_and_verdict():
     f = frame()
     md = claims_markdown(f)
     rows = [line for line in md.splitlines() if line.startswith("| **")]
-    assert len(rows) == 3 and "| — |" in rows[1]  # no paper number
-    assert "DyNeRF: 32.47 ± 0.22 → 32.81 ± 0.08 (10 runs)" in rows[0] and "own evidence" in rows[0]
+    assert len(rows) == 3 and "decides `s_cc`" in rows[0]
     assert "✅ reproduced" in rows[0] and f"{f.effect[0]:+.2f} [" in rows[0] and "±0.3" in rows[0]
-    assert "6 pairs" in rows[0] and "paired t" in md and "Holm over 2" in md
+    assert "6 pairs" in rows[0] and "paired t" in md and "Holm over 4 hypotheses" in md
+    assert f"p = {p_text(f.p_adj[0])}" in rows[0]  # the p that decided it, family-corrected
     assert "❔ inconclusive" in rows[1] and "runs/arm for 80% power at the SESOI" in rows[1]
     assert "not tested" in rows[2] and "nosuch" in rows[2]
     tex = claims_latex(f, "secret5")
@@ -76,13 +83,16 @@ def test_index_page_names_its_families_and_shows_the_paper_beside_us():
     f = frame()
     entries = decide_all([StudyClaims("secret5", "q", f, "secret5/index.md", 18, "abc123"),
                           StudyClaims("lpips", "q", f.iloc[:0], "lpips/index.md", 4, "abc123")])
-    page = index_markdown(entries, [("Speed", "speed_accuracy/speed_accuracy.png")], ["secret3"], forest="forest.png")
-    rows = [line for line in page.splitlines() if line.startswith("| secret5 |")]
-    assert len(rows) == 3 and all("[secret5](secret5/index.md)" in r for r in rows)
+    page = index_markdown(entries, [("Speed", "speed_accuracy/speed_accuracy.png")], ["secret3"], forest="forest.png",
+                          register=REGISTER)
+    rows = [line for line in page.splitlines() if line.startswith("| secret 5 |") or line.startswith("| outdoor |")]
+    assert len(rows) == 4 and "[secret5](secret5/index.md)" in rows[0]  # one row per statement
     assert "32.47 ± 0.22 → 32.81 ± 0.08" in rows[0] and "distinguishable from its own spread" in rows[0]
-    assert "reproduced" in rows[0] and "±0.3" in rows[0]
-    assert "**paper** (the paper's method claims): paper (every study): Holm over 2" in page
-    assert page.index("![Every claim") < page.index("## Families") < page.index("| secret5 |")
+    assert "reproduced" in rows[0] and "±0.3" in rows[0] and "DyNeRF: " in rows[0].split("|")[8]  # the size
+    assert "not tested (needs real data (REAL_ROOT))" in rows[3]
+    assert "**paper** (the paper's method claims): paper (every study): Holm over 4 hypotheses" in page
+    assert "4 statements: 1 reproduced, 1 inconclusive, 2 not tested" in page
+    assert page.index("## Families") < page.index("| secret 5 |") < page.index("![Every counted claim")
     assert "Studies with runs but no claims: [lpips](lpips/index.md)" in page
     assert "![Speed](speed_accuracy/speed_accuracy.png)" in page and "`secret3`" in page
     assert "Runs made by code abc123, trainer fingerprint unknown." in page and "More than one" not in page
@@ -96,6 +106,9 @@ def test_forest_plot_draws_each_tested_claim_in_sesoi_units(tmp_path: Path):
     assert forest_plot(f, tmp_path / "forest.png").read_bytes()[:4] == b"\x89PNG"
     row = f.iloc[0]
     assert paper_points(row) == [("DyNeRF", pytest.approx(0.34 / 0.3))]
+    lower = row.copy()
+    lower["expect"] = "lower"
+    assert paper_points(lower) == [("DyNeRF", pytest.approx(-0.34 / 0.3))]  # the claimed direction to the right
     assert V.in_sesoi_units(row)[0] == pytest.approx(row.effect / 0.3)
 
 
@@ -134,6 +147,11 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     assert main(["index", "--out", "reports"]) == 0
     page = Path("reports/index.md").read_text()
     assert sum(line.startswith("| mini |") for line in page.splitlines()) == 4
+    # one verdict everywhere: the study page's claims are the index's, row for row
+    index_claims = pd.read_csv("reports/claims.csv")
+    pd.testing.assert_frame_equal(index_claims[index_claims.study == "mini"].drop(columns="study")
+                                  .reset_index(drop=True)[["id", "verdict", "p_adj", "p_tost_adj", "family"]],
+                                  claims[["id", "verdict", "p_adj", "p_tost_adj", "family"]])
     assert "[mini](mini/index.md)" in page and "`later`: `study run later --profile quick`" in page
     assert main(["index", "--out", "reports"]) == 0 and Path("reports/index.md").read_text() == page  # same page
 

@@ -1,4 +1,6 @@
-"""FINDINGS.md cannot drift from the reports: every decimal it cites names the generated number."""
+"""FINDINGS.md cannot drift from the reports: every decimal it cites names the generated number,
+a whole number it tags is checked like a decimal, and a sentence cannot state a direction its
+number contradicts."""
 
 from __future__ import annotations
 
@@ -37,8 +39,9 @@ def test_a_cited_number_must_name_the_generated_value_it_comes_from(tmp_path: Pa
     assert (f["secret5.min.relocated_total.cc.studio"], f["secret5.max.relocated_total.cc.studio"]) == (1500, 1900)
     assert "secret5.median.seed.cc.studio" not in f
     assert f["secret5.variance.hardware_kernel_dispatch.sd"] == 0.069  # a key has no spaces or brackets
-    assert (f["ablation.paper.flow_improves.DyNeRF.b"], f["ablation.paper.flow_improves.DyNeRF.a"]) == (32.62, 32.73)
-    assert f["ablation.paper.outdoor_psnr.Google_Immersive.effect"] == pytest.approx(22.68 - 22.29)  # the study files
+    assert (f["paper.ab_flow.DyNeRF.b"], f["paper.ab_flow.DyNeRF.a"]) == (32.62, 32.73)  # the paper register
+    assert f["paper.out_ftgspp.Google_Immersive.effect"] == pytest.approx(22.68 - 22.29)
+    assert f["paper.s5_cc_spread.DyNeRF.sd_ratio"] == pytest.approx(0.08 / 0.22)
     good = ("Run-to-run SD 0.26<!--secret5.psnr.baseline.studio.std--> dB against 0.11<!--secret5.psnr.cc.studio.std-->;"
             " CC +0.02<!--secret5.claims.cc_raises_mean.effect--> dB (SESOI ±0.34<!--secret5.claims.cc_raises_mean.sesoi-->),"
             " a gap of 0.020<!--secret5.psnr.diff.studio.baseline-cc|abs--> dB. Commit `7fae4f1`, 5 seeds.")
@@ -56,3 +59,19 @@ def test_the_committed_findings_cite_only_what_the_committed_reports_hold() -> N
     findings = json.loads((reports / "findings.json").read_text())
     assert findings == collect_findings(reports)  # findings.json is generated, not edited
     assert check((reports / "FINDINGS.md").read_text(), findings) == []
+
+
+def test_a_wrong_whole_number_or_a_flipped_direction_fails(tmp_path: Path) -> None:
+    f = collect_findings(_reports(tmp_path))
+    f["secret5.claims.cc_lowers_spread.effect"], f["secret5.claims.cc_lowers_spread.centre"] = 1.61, 1.0
+    median = "secret5.median.relocated_total.cc.studio"
+    assert check(f"a median of 1,600<!--{median}--> relocations over 5 seeds", f) == []
+    assert check(f"a median of 1,532<!--{median}--> relocations", f) == [f"1532: {median} is 1600.00"]
+    ratio = "secret5.claims.cc_lowers_spread.effect"
+    assert check(f"Colour correction raises the spread: ×1.61<!--{ratio}-->.", f) == []
+    assert check(f"Colour correction does not lower the spread (×1.61<!--{ratio}-->).", f) == []
+    assert check(f"Colour correction lowers the spread (×1.61<!--{ratio}-->).", f) == [
+        f"×1.61: the sentence says down, but {ratio} is 1.61 (a ratio: against 1)"]
+    effect = "secret5.claims.cc_raises_mean.effect"
+    assert check(f"CC raises the mean by +0.02<!--{effect}--> dB.", f) == []
+    assert check(f"CC lowers the mean by +0.02<!--{effect}--> dB.", f) != []

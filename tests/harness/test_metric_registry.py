@@ -23,8 +23,7 @@ STUDY = {
     "profiles": {p: {"seeds": 3, "overrides": ["profile=smoke"], "scenes": [{"name": "easy", "synth": {}}]}
                  for p in ("quick", "paper")},
     "claims": [{"id": "cc_sharper", "claim": "Colour correction lowers the sharpness score.", "metric": "sharpness",
-                "test": "mean", "a": "cc", "b": "baseline", "expect": "lower", "sesoi": 0.1,
-                "sesoi_source": "a test value"}],
+                "test": "mean", "a": "cc", "b": "baseline", "expect": "lower"}],
 }
 
 
@@ -62,6 +61,10 @@ def test_a_new_metric_is_one_registry_entry(tmp_path: Path, monkeypatch: pytest.
         load_study("sharp", studies)  # a claim may only name a registered metric
 
     metrics.register(Metric("sharpness", "Sharpness score", decimals=1, better=LOWER))
+    with pytest.raises(InputError, match="no smallest effect of interest"):
+        load_study("sharp", studies)  # a claim needs its metric's smallest effect of interest
+    metrics.register(Metric("sharpness", "Sharpness score", decimals=1, better=LOWER, smallest_effect=0.1,
+                            sesoi_scale="sharpness"))
     try:
         run_study("sharp", Selection(), studies_dir=studies, train_fn=sharp_train, generate=fake_generate,
                   echo=lambda s: None)
@@ -152,7 +155,18 @@ def test_each_image_metric_is_an_entry_computed_by_its_ftgspp_evaluator() -> Non
 def test_units_are_what_the_labels_end_with() -> None:
     for m in metrics.entries():
         assert not m.unit or m.label.endswith(f"({m.unit})"), m.name
-        assert m.smallest_effect is None  # none set yet
+        assert (m.smallest_effect is None) == (m.name not in metrics.SMALLEST_EFFECTS), m.name
+        assert m.smallest_effect is None or m.smallest_effect > 0 and m.sesoi_scale, m.name
+
+
+def test_every_claimable_metric_a_study_claims_on_has_a_documented_smallest_effect() -> None:
+    from harness.spec.study_files import list_studies, load_study
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "sesoi.md").read_text()
+    for name in list_studies():
+        for c in load_study(name).claims:
+            value, scale = metrics.sesoi(c.metric, c.test)
+            assert c.sesoi == value and f'id="{scale}"' in doc, (name, c.id)  # one value per metric, its rationale
 
 
 def test_the_harness_lists_of_metrics_come_from_the_registry(capsys: pytest.CaptureFixture[str]) -> None:

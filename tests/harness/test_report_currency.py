@@ -30,9 +30,9 @@ STUDY = {
     "plots": [],
     "claims": [
         {"id": "cc_mean", "claim": "CC raises PSNR.", "metric": "psnr", "test": "mean", "a": "cc", "b": "baseline",
-         "expect": "higher", "pair": "none", "sesoi": 0.3, "sesoi_source": "default"},
+         "expect": "higher", "pair": "none"},
         {"id": "cc_spread", "claim": "CC lowers the spread.", "metric": "psnr", "test": "variance", "a": "cc",
-         "b": "baseline", "expect": "lower", "sesoi": 2.0, "sesoi_source": "default ratio"},
+         "b": "baseline", "expect": "lower"},
     ],
     "profiles": {
         "quick": {"seeds": 3, "overrides": ["profile=smoke"], "run_seconds": 5, "jobs": 2,

@@ -1,0 +1,121 @@
+"""One decision over every study's claims, shared by ``reports/index.md`` and every study page.
+
+A family's error rate is over every study at once (``analysis.verdicts.decide``), so a study
+page cannot decide its claims alone: ``family_verdicts(root)`` evaluates every study's claims
+on its runs — from the tracking store, else from its report under ``root`` (``runs.csv``), else
+from the committed report in ``reports/`` — and decides them together, once per process. The
+index and each page read their rows from it, so the two always show the same verdict, the same
+p that decided it and the same family.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import pandas as pd
+
+from harness.analysis import verdicts as V
+from harness.report import COMMITTED_REPORTS
+from harness.report.results import collect, trainer_fingerprints
+from harness.spec import study_files
+from harness.spec.metrics import add_differences
+from harness.spec.paper_register import Register
+from harness.spec.study_files import list_studies, load_register, load_study
+
+CODE_AT = re.compile(r"code at ([0-9a-f]{7,40}(?:, [0-9a-f]{7,40})*)")  # a study page's provenance line
+EVERY_STUDY = " (every study)"
+
+
+@dataclass
+class StudyClaims:
+    """One study's claims, evaluated on its runs and decided with every other study's."""
+
+    study: str
+    question: str
+    frame: pd.DataFrame  # verdicts.evaluate, then decided over every study
+    report: str  # link to the study's report, relative to the index page
+    n_finished: int
+    code: str = ""  # git sha(s) of the runs
+    fingerprints: tuple[str, ...] = ()  # trainer fingerprints of the finished runs
+    source: str = "tracking store"  # or "committed report" (its runs.csv)
+
+
+def store_claims(name: str, register: Register, studies_dir: Path | None = None) -> StudyClaims | None:
+    """The study's claims on its latest invocation's runs in the tracking store; None when none finished."""
+    data = collect(name, None, studies_dir)
+    n_done = int((data.df.status == "FINISHED").sum())
+    if n_done == 0:
+        return None
+    frame = V.evaluate(add_differences(data.df), data.study.claims, name, register)
+    return StudyClaims(name, data.study.question, frame, (Path(name) / "index.md").as_posix(), n_done,
+                       ", ".join(data.code_versions()), tuple(data.trainer_fingerprints()))
+
+
+def report_claims(name: str, root: Path, register: Register, studies_dir: Path | None = None) -> StudyClaims | None:
+    """The study's claims on the runs of its report under ``root`` (its ``runs.csv``); None when
+    there is no report or none of its runs finished. Its page names the code that made it
+    ("code at ..."); the stale check compares its trainer fingerprints with this checkout's."""
+    folder = Path(root) / name
+    if not (folder / "runs.csv").is_file():
+        return None
+    df = pd.read_csv(folder / "runs.csv")
+    n_done = int((df.status == "FINISHED").sum())
+    if n_done == 0:
+        return None
+    page = (folder / "index.md").read_text() if (folder / "index.md").is_file() else ""
+    code = m.group(1).strip() if (m := CODE_AT.search(page)) else ""
+    study = load_study(name, studies_dir)
+    frame = V.evaluate(add_differences(df), study.claims, name, register)
+    return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),
+                       n_done, code, tuple(trainer_fingerprints(df)), source="committed report")
+
+
+def decide_all(entries: list[StudyClaims]) -> list[StudyClaims]:
+    """Every study's claims corrected together, one family per claim group."""
+    frames = [e.frame.assign(study=e.study) for e in entries if not e.frame.empty]
+    if not frames:
+        return entries
+    decided = V.decide(pd.concat(frames, ignore_index=True), label=EVERY_STUDY)
+    return [replace(e, frame=decided[decided.study == e.study].drop(columns="study").reset_index(drop=True))
+            if not e.frame.empty else e for e in entries]
+
+
+@functools.lru_cache(maxsize=4)
+def _family_verdicts(root: Path, studies_dir: Path) -> tuple[tuple[StudyClaims, ...], tuple[str, ...]]:
+    register = load_register(studies_dir)
+    entries, missing = [], []
+    for name in list_studies(studies_dir):
+        entry = (store_claims(name, register, studies_dir) or report_claims(name, root, register, studies_dir)
+                 or (report_claims(name, COMMITTED_REPORTS, register, studies_dir)
+                     if Path(root).resolve() != COMMITTED_REPORTS.resolve() else None))
+        (entries.append(entry) if entry is not None else missing.append(name))
+    return tuple(decide_all(entries)), tuple(missing)
+
+
+def family_verdicts(root: Path, studies_dir: Path | None = None) -> tuple[list[StudyClaims], list[str]]:
+    """(every study with finished runs, decided together; the studies without runs), for the
+    reports under ``root`` (module docstring). Computed once per process and ``root``."""
+    entries, missing = _family_verdicts(Path(root), Path(studies_dir or study_files.STUDIES_DIR))
+    return [replace(e, frame=e.frame.copy()) for e in entries], list(missing)
+
+
+def forget() -> None:
+    """Drop the cached decision (a test, or a process that has just written new runs)."""
+    _family_verdicts.cache_clear()
+
+
+def study_frame(name: str, root: Path, studies_dir: Path | None = None) -> pd.DataFrame | None:
+    """One study's rows of the decision over every study (None when the study has no finished runs)."""
+    entries, _ = family_verdicts(root, studies_dir)
+    return next((e.frame for e in entries if e.study == name), None)
+
+
+def deciding_verdicts(root: Path, studies_dir: Path | None = None) -> dict[str, str]:
+    """Each paper statement's deciding claim and its verdict (``secret5_cc.cc_raises_mean_drift:
+    inconclusive``), for the pages that show evidence for it."""
+    entries, _ = family_verdicts(root, studies_dir)
+    return {r.statement_id: f"decided by `{e.study}.{r.claim}`: {r.verdict}" for e in entries
+            for _, r in e.frame.iterrows() if r.statement_id and r.role == V.DECIDES}
