@@ -35,7 +35,8 @@ def git_sha() -> str:
         if sha.returncode != 0:
             return "unknown"
         dirty = subprocess.run(
-            ["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
+            # Generated reports are outputs, not code: writing one must not make the next "dirty".
+            ["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)reports"],
             capture_output=True,
             text=True,
             timeout=10,
