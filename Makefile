@@ -56,8 +56,10 @@ reports: install weights
 	$(VENV)/bin/study index --out reports
 	@echo "open reports/index.md"
 
+# Two pytest workers (pytest-xdist), one test file each at a time so a file's fixtures are built
+# once: 1.6x faster than one worker on 2 cores (BENCHMARKS.md). TEST_JOBS=1 runs them serially.
 test: install weights
-	$(VENV)/bin/python -m pytest -q
+	$(VENV)/bin/python -m pytest -q -n $(or $(TEST_JOBS),2) --dist loadfile
 
 # The multi-user tracking server (docs/cluster.md): PostgreSQL + mlflow server with proxied
 # artifacts on 127.0.0.1:5000, data in ./tracking-server. Ctrl-C stops both.

@@ -52,8 +52,10 @@ ANOTHER_DOMAIN, ANOTHER_CONFIG, TRAINER_CODE = "another determinism domain", "an
 
 
 def read_reference(path: str) -> pd.DataFrame:
-    """A committed ``runs.csv`` with floats read back exactly as written."""
-    return pd.read_csv(path, float_precision="round_trip", keep_default_na=False, na_values=[""],
+    """A committed ``runs.csv`` with floats read back exactly as written (pandas' default parser is
+    exact for what ``to_csv`` writes: every float of the committed reports reads back bit for bit;
+    ``float_precision="round_trip"`` is deprecated)."""
+    return pd.read_csv(path, keep_default_na=False, na_values=[""],
                        dtype={c: str for c in TEXT_COLUMNS})
 
 

@@ -91,9 +91,16 @@ def statement_verdict(s: Statement, deciding: list[tuple[str, pd.Series]]) -> st
     return "; ".join(verdict_text(r) for _, r in deciding)
 
 
+def _scale(r: pd.Series) -> str:
+    """The metric and SESOI a deciding claim is judged on; a two-metric claim's effect is its second metric's."""
+    if r.test in ("decoupled", "dissociated"):
+        return f"SESOI {sesoi_text(r)} on `{r.metric}`; the effect shown is the other metric's difference"
+    return f"`{r.metric}`, SESOI {sesoi_text(r)}"
+
+
 def _statement_row(s: Statement, rows: dict[str, tuple[str, str, pd.Series]], numbers: str, evidence: str) -> str:
     deciding = [(study, r) for ref, (study, report, r) in rows.items() if ref == s.decided_by]
-    decides = "; ".join(f"`{s.decided_by}` ({r.comparison}, `{r.metric}`, SESOI {sesoi_text(r)})" for _, r in deciding)
+    decides = "; ".join(f"`{s.decided_by}` ({r.comparison}, {_scale(r)})" for _, r in deciding)
     ours = "; ".join(_ours(r) for _, r in deciding) or "—"
     size = "; ".join(r.paper_size for _, r in deciding if r.paper_size) or "—"
     others = "<br>".join(_condition(rows[ref][2], rows[ref][0]) for ref in s.evidence if ref in rows) or "—"

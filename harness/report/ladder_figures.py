@@ -159,7 +159,8 @@ def ladder_plot(table: pd.DataFrame, runs: pd.DataFrame, scenes: Sequence[StudyS
         bottom.set_ylim(-5, 110)
     axes[0][0].set_ylabel("PSNR (dB), finished runs: mean ± std")
     axes[1][0].set_ylabel("failed runs (% of attempted)")
-    axes[0][0].legend(fontsize=7, loc="best")
+    if axes[0][0].get_legend_handles_labels()[0]:  # a ladder with no finished cell has nothing to label
+        axes[0][0].legend(fontsize=7, loc="best")
     fig.suptitle(f"{title}\nfailed runs: crash(ed), div(erged), coll(apsed) = finished"
                  f" > {COLLAPSE_DB:g} dB below the method's base-cell mean")
     return save_figure(fig, path)
