@@ -49,6 +49,8 @@ class InitConfig:
 
     keyframe_stride: int = 10
     neighbor_cams: int = 2  # each view is matched to its k nearest cameras
+    matcher: str = "sift"  # sift (sparse features) | dense (flow between views: ftgspp/init/dense.py)
+    candidates_per_frame: int | None = None  # dense: points kept per keyframe (None: the paper's ~0.5 per pixel)
     max_features: int = 4_000  # SIFT features per image
     ratio_test: float = 0.75
     max_reproj_px: float = 2.0
@@ -56,6 +58,7 @@ class InitConfig:
     flow_model: str = "dis"  # optical-flow model for velocity=flow (registry in ftgspp/init/flow.py)
     flow_min_weight: float = 1.0  # summed covisibility weight needed to accept a flow velocity
     flow_max_disp: float = 3.0  # accept only |v| dt <= this x local kNN spacing
+    flow_combine: str = "mean"  # views' flow displacements: mean (the paper) | lsq | rays (full 3D)
     knn_k: int = 3
     opacity: float = 0.5
     duration: float = 0.1  # seconds

@@ -16,7 +16,7 @@ PyTorch modules and gsplat strategies do.
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -45,10 +45,13 @@ def scene_extent(scene: Scene) -> float:
     return float(1.1 * np.linalg.norm(centres - centres.mean(0), axis=1).max())
 
 
-def build_model(cfg: TrainConfig, scene: Scene, device: torch.device) -> FreeTimeGaussians:
-    """Initialise the Gaussians from the scene (seeded by ``init.fixed_seed`` or the run seed)."""
+def build_model(cfg: TrainConfig, scene: Scene, device: torch.device, stats: dict | None = None) -> FreeTimeGaussians:
+    """Initialise the Gaussians from the scene (seeded by ``init.fixed_seed`` or the run seed);
+    ``stats`` (when given) receives what the initial point set is made of (``InitPoints.stats``)."""
     init_seed = cfg.seed if cfg.init.fixed_seed is None else cfg.init.fixed_seed
     pts = initialize(scene, cfg.init, cfg.budget, seed=init_seed)
+    if stats is not None:
+        stats.update(pts.stats)
     return FreeTimeGaussians.from_points(
         pts.means, pts.colors, pts.times, pts.velocities, pts.spacing, cfg.model, cfg.init, device
     )
@@ -124,12 +127,14 @@ class TrainState:
     step: int = 0
     elapsed: float = 0.0
     relocated: int = 0  # Gaussians relocated so far (summed over relocation steps)
+    init_stats: dict = field(default_factory=dict)  # the initial point set (written to init.json)
 
     @classmethod
     def create(cls, cfg: TrainConfig, scene: Scene, device: torch.device) -> "TrainState":
         """A fresh run: initialised Gaussians, identity colour correction, seeded generators."""
         relocator = Relocator(cfg.strategy)  # validates the strategy before the (slow) init
-        model = build_model(cfg, scene, device)
+        init_stats: dict = {}
+        model = build_model(cfg, scene, device, init_stats)
         cc = ColorCorrection(len(scene.train_ids), device, cfg.model.cc_gauge) if cfg.model.color_correction else None
         extent = scene_extent(scene)
         return cls(
@@ -141,6 +146,7 @@ class TrainState:
             sampler=FrameSampler(scene, torch.Generator().manual_seed(cfg.seed)),
             reloc_gen=torch.Generator().manual_seed(cfg.seed + 1),
             extent=extent,
+            init_stats=init_stats,
         )
 
     def state_dict(self) -> dict:

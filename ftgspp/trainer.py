@@ -139,6 +139,8 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
 
     clock = time.perf_counter()
     state = TrainState.create(cfg, scene, env.device)
+    if state.init_stats:  # what the initial point set is made of (ftgspp/init/quality.py)
+        (out_dir / "init.json").write_text(json.dumps(state.init_stats, indent=1, sort_keys=True))
     lpips_net = _lpips_loss_net(cfg, env.device)
     init_seconds = time.perf_counter() - clock
     ckpt = out_dir / CHECKPOINT

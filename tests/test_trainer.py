@@ -138,6 +138,9 @@ def test_cli_train_writes_metrics_and_prints_one_json_line(tiny_scene_dir, tmp_p
     assert line["status"] == "FINISHED" and "psnr" in line
     assert json.loads((run_dir / "metrics.json").read_text())["psnr"] == pytest.approx(line["psnr"])
     assert (run_dir / ".hydra" / "config.yaml").exists()
+    init = json.loads((run_dir / "init.json").read_text())  # what the initial point set is made of
+    assert init["init_points_total"] > 0 and 0 < init["init_real_share"] <= 1 and init["init_matcher_dense"] == 0
+    assert init["init_velocity_points_scored"] > 0 and init["init_velocity_error_static"] >= 0  # ground truth
 
 
 @pytest.mark.parametrize("args, words", [

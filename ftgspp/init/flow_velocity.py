@@ -16,6 +16,10 @@ For the points ``X [M, 3]`` of keyframe ``frame0`` and the next keyframe ``frame
    Tikhonov term ``λ = 0.1 Σ w_c``. When every view shares one axis the two agree; on the
    50° arc of the synthetic ``studio`` rig lsq is ~4 % better on moving points and ~35 %
    worse on static ones (noise along the weakly seen depth axis), so ``mean`` is default.
+   ``combine="rays"`` recovers the full 3D displacement: each view's flow moves the point's
+   pixel, the ray through the moved pixel must pass through the moved point, and the point
+   nearest all views' moved rays (weighted least squares, ``combine_rays``) is the point one
+   flow step later — triangulated, so motion along a view's axis is seen by the others.
 3. v = d / Δt with Δt = t(frame1) − t(frame0) (negative when looking backwards from the
    last keyframe). Accepted where ``Σ w_c ≥ min_weight`` and ``|v| |Δt| ≤ 3 × spacing``
    (local kNN spacing); elsewhere the kNN velocity is kept.
@@ -47,6 +51,7 @@ log = logging.getLogger("ftgspp.init.flow")
 MIN_WEIGHT = 1.0  # total covisibility weight (sum over views) needed to trust the flow velocity
 MAX_DISP_FACTOR = 3.0  # |v| dt <= factor * local kNN spacing
 DAMPING = 0.1  # Tikhonov weight (x total weight) for directions no view constrains
+RAY_DAMPING = 0.01  # the same for combine="rays" (a ray's projector is well conditioned across views)
 CELL_PX = 4  # occlusion test: z-buffer cell size in pixels
 OCCLUSION_MARGIN = 2.0  # ... and depth margin in units of the point's kNN spacing
 
@@ -115,6 +120,34 @@ def combine_views(
     return np.einsum("mik,mk->mi", U, coef)
 
 
+def moved_rays(cam: Camera, points: np.ndarray, flow_fw: np.ndarray) -> np.ndarray:
+    """Unit world rays ``[M, 3]`` from ``cam``'s centre through each point's pixel moved by the flow:
+    where the view sees the point one flow step later (any depth along it)."""
+    xc = points @ cam.R.T + cam.T
+    zs = np.where(xc[:, 2] > 1e-9, xc[:, 2], 1.0)
+    uv = (xc @ cam.K.T)[:, :2] / zs[:, None]
+    flow, _ = sample_bilinear(flow_fw, uv)
+    ray = (np.hstack([uv + flow, np.ones((len(uv), 1))]) @ np.linalg.inv(cam.K).T) @ cam.R  # R^T K^-1 [u, 1]
+    return ray / np.linalg.norm(ray, axis=1, keepdims=True)
+
+
+def combine_rays(points: np.ndarray, centers: np.ndarray, rays: np.ndarray, weights: np.ndarray,
+                 damping: float = RAY_DAMPING) -> np.ndarray:
+    """Full 3D displacement ``[M, 3]``: the moved point X + d nearest (weighted least squares) to
+    every view's moved ray, ``min_d Σ_c w_c |(I − r_c r_cᵀ)(X + d − C_c)|²`` — the point
+    triangulated one flow step later, so depth components are kept wherever two views' rays
+    differ in direction. centers ``[C, 3]``, rays ``[C, M, 3]``, weights ``[C, M]``. Directions no
+    pair of rays constrains are damped toward no motion (Tikhonov, ``damping × Σ w``).
+    """
+    proj = np.eye(3)[None, None] - rays[..., :, None] * rays[..., None, :]  # [C, M, 3, 3]
+    A = np.einsum("cm,cmij->mij", weights, proj)  # [M, 3, 3]
+    b = np.einsum("cm,cmij,cmj->mi", weights, proj, centers[:, None, :] - points[None])  # [M, 3]
+    e, U = np.linalg.eigh(A)
+    lam = damping * weights.sum(axis=0)[:, None]
+    gain = e / np.maximum(e * e + lam * lam, 1e-24)
+    return np.einsum("mik,mk->mi", U, np.einsum("mik,mi->mk", U, b) * gain)
+
+
 def flow_velocities(
     scene: Scene,
     points: np.ndarray,  # [M, 3]
@@ -148,14 +181,22 @@ def flow_velocities(
     disp = np.zeros((len(cams), m, 3))
     weights = np.zeros((len(cams), m))
     axes = np.zeros((len(cams), 3))
+    rays = np.zeros((len(cams), m, 3)) if combine == "rays" else None
     for k, c in enumerate(cams):
         cam = scene.cameras[c]
         disp[k], weights[k], _ = view_displacements(cam, pts, flows.forward[c], flows.weight(c))
         if occlusion and m:
             weights[k] *= visible_mask(cam, pts, spacing)
         axes[k] = cam.R[2]  # camera z axis in world coordinates
+        if rays is not None:
+            rays[k] = moved_rays(cam, pts, flows.forward[c])
     wsum = weights.sum(axis=0)
-    vel = combine_views(disp, weights, axes, combine) / dt if m else np.zeros((0, 3))
+    if not m:
+        vel = np.zeros((0, 3))
+    elif rays is not None:
+        vel = combine_rays(pts, np.stack([scene.cameras[c].center for c in cams]), rays, weights) / dt
+    else:
+        vel = combine_views(disp, weights, axes, combine) / dt
     speed_ok = np.linalg.norm(vel, axis=1) * abs(dt) <= max_disp_factor * spacing
     weight_ok = wsum >= min_weight
     accepted = weight_ok & speed_ok & np.all(np.isfinite(vel), axis=1)
@@ -207,6 +248,7 @@ def keyframe_flow_velocities(
             scene, points[i], keyframes[i], keyframes[j], knn_velocities[i], spacing[i], model, flows=flows,
             min_weight=getattr(cfg, "flow_min_weight", MIN_WEIGHT),
             max_disp_factor=getattr(cfg, "flow_max_disp", MAX_DISP_FACTOR),
+            combine=getattr(cfg, "flow_combine", "mean"),
         )  # fmt: skip
         out.append(vel)
         for k in total:

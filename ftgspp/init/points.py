@@ -1,7 +1,8 @@
 """Initial 4D Gaussians from multi-view video: triangulated keyframe points.
 
 For every keyframe (every ``cfg.keyframe_stride``-th loaded frame) and every training camera
-(the held-out test cameras are never read):
+(the held-out test cameras are never read), with ``init.matcher=sift`` (``dense``: the paper's
+dense matching, ftgspp/init/dense.py):
 
 1. SIFT features (``cv2.SIFT_create(nfeatures=cfg.max_features)``).
 2. Each view is matched to its ``cfg.neighbor_cams`` nearest training cameras by centre
@@ -12,29 +13,27 @@ For every keyframe (every ``cfg.keyframe_stride``-th loaded frame) and every tra
    of both cameras with depth in ``[near, far]`` (``depth_range``) and reprojects within
    ``cfg.max_reproj_px`` in both views. Colour = mean of the two pixel colours.
 
-A feature (camera, keypoint position) yields at most one point per keyframe: once used by a
-pair, later pairs skip it, so a feature seen by three cameras is not triangulated three times
-(near-duplicates would make the kNN spacing, and so the initial scales, collapse to zero).
+A feature yields at most one point per keyframe: later pairs skip a used one (near-duplicates
+would collapse the kNN spacing, and so the initial scales, to zero).
 
-``initialize`` then adds kNN velocities (``ftgspp.init.velocity``), temporal centres
-(keyframe time + uniform jitter in +-stride/fps/2, not clipped to the loaded time span), kNN
-spacing (3 nearest neighbours in the same keyframe, floored at 1e-4 x the median so scales
-stay positive) and fits the count to the budget: more points than ``budget -
-cfg.random_points`` are subsampled without replacement; fewer are topped up by resampling
-points with replacement and jittering the copies' positions by N(0, (0.5 spacing)^2) per
-axis (colour, time, velocity and spacing kept). ``cfg.random_points`` extra points (part of
-the budget) are uniform in pixel and depth in [near, far] of random training cameras, with
-random colour, zero velocity, a time uniform over the keyframe span and their own kNN
-spacing. All randomness comes from ``np.random.default_rng(seed)``.
+``initialize`` then adds kNN velocities (``ftgspp.init.velocity``), temporal centres (keyframe time
++ uniform jitter in +-stride/fps/2, not clipped to the loaded time span), kNN spacing (3 nearest
+neighbours in the same keyframe, floored at 1e-4 x the median so scales stay positive) and fits the
+count to the budget: more points than ``budget - cfg.random_points`` are subsampled without
+replacement; fewer are topped up by resampling points with replacement and jittering the copies'
+positions by N(0, (0.5 spacing)^2) per axis (colour, time, velocity and spacing kept).
+``cfg.random_points`` extra points (part of the budget) are uniform in pixel and depth in [near,
+far] of random training cameras, with random colour, zero velocity, a time uniform over the keyframe
+span and their own kNN spacing. All randomness comes from ``np.random.default_rng(seed)``.
 
-Scene scale (for the ``indoor``/``outdoor`` depth priors and fallbacks): the median distance
-of the training camera centres to their centroid, or 1 when that is zero (a single camera).
+``InitPoints.stats`` says what the set is made of (ftgspp/init/quality.py). Scene scale (depth
+priors, fallbacks): median distance of the training camera centres to their centroid, or 1.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -43,6 +42,7 @@ from scipy.spatial import cKDTree
 from ftgspp.config import InitConfig
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.errors import InputError
+from ftgspp.init.quality import init_stats, velocity_error
 from ftgspp.init.velocity import check_velocity_mode, keyframe_velocities
 
 log = logging.getLogger("ftgspp.init")
@@ -63,16 +63,17 @@ class InitPoints:
     velocities: np.ndarray  # [N, 3] float32 world units / second
     spacing: np.ndarray  # [N] float32 mean distance to 3 nearest neighbours (same keyframe)
     keyframe: np.ndarray  # [N] int64 index of the keyframe the point came from
+    stats: dict = field(default_factory=dict)  # what it is made of (ftgspp/init/quality.py); not per point
 
     def __len__(self) -> int:
         return len(self.means)
 
     def take(self, idx: np.ndarray) -> "InitPoints":
         """The points at ``idx`` (any integer index array, repeats allowed)."""
-        return InitPoints(*(getattr(self, f)[idx] for f in _FIELDS))
+        return InitPoints(*(getattr(self, f)[idx] for f in POINT_FIELDS))
 
 
-_FIELDS = ("means", "colors", "times", "velocities", "spacing", "keyframe")
+POINT_FIELDS = ("means", "colors", "times", "velocities", "spacing", "keyframe")
 
 
 # --------------------------------------------------------------------------- geometry
@@ -317,7 +318,7 @@ def _fit_budget(pts: InitPoints, budget: int, rng: np.random.Generator) -> InitP
     extra = pts.take(rng.integers(0, n, size=budget - n))
     jitter = rng.normal(size=extra.means.shape) * (0.5 * extra.spacing[:, None])  # [budget - n, 3]
     extra.means = (extra.means + jitter).astype(np.float32)
-    return InitPoints(*(np.concatenate([getattr(pts, f), getattr(extra, f)]) for f in _FIELDS))
+    return InitPoints(*(np.concatenate([getattr(pts, f), getattr(extra, f)]) for f in POINT_FIELDS))
 
 
 def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoints:
@@ -335,7 +336,12 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
     check_velocity_mode(cfg)  # fail before the expensive matching
     kfs = keyframes(scene, cfg)
     kf_times = [float(scene.times[f]) for f in kfs]
-    tri = [triangulate_keyframe(scene, f, cfg, near, far) for f in kfs]
+    if cfg.matcher == "dense":
+        from ftgspp.init.dense import triangulate_keyframe_dense
+
+        tri = [triangulate_keyframe_dense(scene, f, cfg, near, far)[:2] for f in kfs]
+    else:
+        tri = [triangulate_keyframe(scene, f, cfg, near, far) for f in kfs]
     points = [p for p, _ in tri]
     if sum(len(p) for p in points) == 0:
         raise InputError(
@@ -350,6 +356,8 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
         from ftgspp.init.flow_velocity import keyframe_flow_velocities
 
         velocities, _ = keyframe_flow_velocities(scene, kfs, points, velocities, spacing, cfg)
+    stats = init_stats([len(p) for p in points], budget - n_random, cfg.matcher)
+    stats.update(velocity_error(scene, kfs, points, velocities))
     all_spacing = np.concatenate(spacing)
     finite = all_spacing[np.isfinite(all_spacing)]
     fallback = float(np.median(finite)) if len(finite) else 0.01 * scene_scale(scene)
@@ -382,9 +390,10 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
             spacing=np.where(np.isfinite(rand_spacing), rand_spacing, fallback).astype(np.float32),
             keyframe=rk.astype(np.int64),
         )
-        pts = InitPoints(*(np.concatenate([getattr(pts, f), getattr(rand, f)]) for f in _FIELDS))
+        pts = InitPoints(*(np.concatenate([getattr(pts, f), getattr(rand, f)]) for f in POINT_FIELDS))
     log.info(
         "init: %d keyframes, %d triangulated points, %d random, %d after budget (seed %d)",
         len(kfs), len(all_spacing), n_random, len(pts), seed,
     )
+    pts.stats = stats
     return pts

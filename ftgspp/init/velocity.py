@@ -42,9 +42,15 @@ def knn_velocity(points_t: np.ndarray, points_next: np.ndarray, dt: float, k: in
 
 
 def check_velocity_mode(cfg: InitConfig) -> None:
-    """Raise ``InputError`` unless ``cfg.velocity`` names an available method."""
+    """Raise ``InputError`` unless ``cfg.velocity``, ``cfg.matcher`` and ``cfg.flow_combine`` name
+    available methods (before the expensive matching)."""
     if cfg.velocity not in ("knn", "flow"):
         raise InputError("init.velocity", f"unknown value {cfg.velocity!r}; expected 'knn' or 'flow'")
+    if getattr(cfg, "matcher", "sift") not in ("sift", "dense"):
+        raise InputError("init.matcher", f"unknown value {cfg.matcher!r}; expected 'sift' or 'dense'")
+    combine = getattr(cfg, "flow_combine", "mean")
+    if combine not in ("mean", "lsq", "rays"):
+        raise InputError("init.flow_combine", f"unknown value {combine!r}; expected 'mean', 'lsq' or 'rays'")
 
 
 def keyframe_velocities(

@@ -2,7 +2,7 @@
 
 ``flatten_config`` gives the dotted ``key -> str`` mapping logged as MLflow params.
 ``config_hash`` hashes it minus keys that only say where or how verbosely a run writes
-(``HASH_EXCLUDED``), plus the synthetic-scene generator args (the scene's content is not
+(``HASH_EXCLUDED``) and options added later while they keep their old behaviour (``HASH_NEUTRAL``), plus the synthetic-scene generator args (the scene's content is not
 in the training config, only its folder). Two runs with the same hash are the same
 experiment, which is what resume relies on.
 """
@@ -35,6 +35,15 @@ HASH_EXCLUDED = frozenset(
     }
 )
 
+# Options added after runs were made, at the value that reproduces those runs bit for bit: left
+# out of the hash while they hold it, so a run made before the option existed is still the same
+# experiment (resume, `study check`); any other value is hashed like every option.
+HASH_NEUTRAL = {
+    "init.matcher": "sift",
+    "init.candidates_per_frame": "null",
+    "init.flow_combine": "mean",
+}
+
 
 def _flatten(prefix: str, value: Any, out: dict[str, str]) -> None:
     if isinstance(value, dict):
@@ -62,7 +71,7 @@ def flatten_config(cfg: TrainConfig) -> dict[str, str]:
 
 def config_hash(flat: dict[str, str], synth: dict[str, Any] | None = None) -> str:
     """12 hex digits identifying the experiment (see module docstring)."""
-    items = {k: v for k, v in flat.items() if k not in HASH_EXCLUDED}
+    items = {k: v for k, v in flat.items() if k not in HASH_EXCLUDED and HASH_NEUTRAL.get(k) != v}
     if synth:
         items.update({f"synth.{k}": json.dumps(v, sort_keys=True) for k, v in synth.items()})
     blob = json.dumps(sorted(items.items()), separators=(",", ":"))

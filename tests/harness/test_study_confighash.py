@@ -59,3 +59,18 @@ def test_thread_count_is_part_of_the_hash_and_params() -> None:
         assert _hash(base) == _hash(one)
     finally:
         torch.set_num_threads(before)
+
+
+def test_an_option_added_later_hashes_like_before_at_its_old_behaviour_and_counts_otherwise() -> None:
+    """Runs made before ``init.matcher`` / ``init.candidates_per_frame`` / ``init.flow_combine``
+    existed keep their hash (resume, `study check`) while those options keep the old behaviour."""
+    from harness.spec.confighash import HASH_NEUTRAL
+
+    base = TrainConfig()
+    flat = flatten_config(base)
+    assert {k: flat[k] for k in HASH_NEUTRAL} == HASH_NEUTRAL  # today's defaults are the neutral values
+    before = {k: v for k, v in flat.items() if k not in HASH_NEUTRAL}  # the config as it was
+    assert config_hash(flat) == config_hash(before)
+    for change in (dict(matcher="dense"), dict(candidates_per_frame=1000), dict(flow_combine="rays")):
+        other = dataclasses.replace(base, init=dataclasses.replace(base.init, **change))
+        assert _hash(other) != _hash(base), change

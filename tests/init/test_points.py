@@ -21,7 +21,7 @@ from ftgspp.config import InitConfig
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.errors import InputError
 from ftgspp.init import InitPoints, depth_range, initialize, triangulate_keyframe
-from ftgspp.init.points import fundamental_matrix, sampson_distance
+from ftgspp.init.points import POINT_FIELDS, fundamental_matrix, sampson_distance
 
 W, H, F_PX = 128, 96, 150.0
 RADIUS = 4.0
@@ -175,7 +175,7 @@ def test_initialize_downsampling_is_exact_deterministic_and_seeded(scene, triang
     assert sum(r.name == "ftgspp.init" and "frame" in r.getMessage() for r in caplog.records) >= 3
     b, c = initialize(scene, explicit(), budget=small, seed=7), initialize(scene, explicit(), budget=small, seed=8)
     assert isinstance(a, InitPoints) and len(a) == small
-    assert all(getattr(a, f).shape[0] == small for f in vars(a))
+    assert all(getattr(a, f).shape[0] == small for f in POINT_FIELDS)
     for f in vars(a):
         assert np.array_equal(getattr(a, f), getattr(b, f))
     assert not np.array_equal(a.means, c.means)
@@ -192,7 +192,7 @@ def test_initialize_upsampling_adds_jittered_copies(scene, triangulated):
 
     budget = 3 * len(triangulated)
     up = initialize(scene, explicit(), budget=budget, seed=3)
-    assert len(up) == budget and all(getattr(up, f).shape[0] == budget for f in vars(up))
+    assert len(up) == budget and all(getattr(up, f).shape[0] == budget for f in POINT_FIELDS)
     assert up.means.dtype == np.float32 and up.times.dtype == np.float32 and up.colors.dtype == np.float32
     # every triangulated point is kept
     rows = {tuple(r) for r in np.hstack([up.means, up.colors])}

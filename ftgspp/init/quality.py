@@ -1,0 +1,83 @@
+"""What an initialisation is made of, and, on a synthetic scene, how right its velocities are.
+
+``init_stats`` counts the real (triangulated) points per keyframe and the share of the budget
+they fill (the rest are jittered copies). ``velocity_error`` scores the initial velocities
+against the scene's ground truth (``gt/depth`` and ``gt/flow3d``): each real point of keyframe
+f is looked up in the first training camera that sees it (its projected depth within
+``DEPTH_TOL`` of the ground-truth depth at its pixel: the visible surface is the point), and
+its velocity is compared with the ground-truth world velocity there. Points on moving content
+(true speed above ``MOVING_SPEED``) and on static content are scored apart: the median
+end-point error in units/s, and on moving points also the median true speed, so the error
+reads as a fraction of the motion.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ftgspp.data.scene import Scene
+
+DEPTH_TOL = 0.02  # relative depth agreement that counts as "this camera sees the point"
+MOVING_SPEED = 1e-3  # units/s: slower ground truth counts as static
+
+
+def init_stats(per_keyframe: list[int], budget: int, matcher: str) -> dict[str, float]:
+    """Real points per keyframe (min / median / max), their total and share of the budget."""
+    n = np.asarray(per_keyframe, dtype=np.float64)
+    total = float(n.sum())
+    return {
+        "init_matcher_dense": float(matcher == "dense"),
+        "init_points_total": total,
+        "init_points_per_keyframe_min": float(n.min()) if len(n) else 0.0,
+        "init_points_per_keyframe_median": float(np.median(n)) if len(n) else 0.0,
+        "init_points_per_keyframe_max": float(n.max()) if len(n) else 0.0,
+        "init_real_share": min(total, budget) / budget if budget else 0.0,
+    }
+
+
+def ground_truth_velocities(scene: Scene, keyframes: list[int], points: list[np.ndarray]
+                            ) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """Per keyframe: the world velocity ``[M, 3]`` of each point at that frame and a mask ``[M]``
+    of the points some training camera sees (NaN velocity elsewhere); None without ground truth.
+    One camera's ground truth is loaded at a time."""
+    from ftgspp.diagnostics.motion import load_ground_truth  # diagnostics read the same files
+    from ftgspp.init.points import project
+
+    out = [(np.full((len(p), 3), np.nan), np.zeros(len(p), dtype=bool)) for p in points]
+    for cam_id in scene.train_ids:
+        gt = load_ground_truth(scene, cam_id)
+        if gt is None:
+            return None
+        cam = scene.cameras[cam_id]
+        for f, p, (vel, found) in zip(keyframes, points, out):
+            uv, z = project(cam, np.asarray(p, dtype=np.float64))
+            with np.errstate(invalid="ignore"):
+                x, y = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+                inside = (~found) & (z > 0) & (x >= 0) & (x < cam.width) & (y >= 0) & (y < cam.height)
+            xi, yi = x[inside].astype(np.int64), y[inside].astype(np.int64)
+            seen = np.abs(gt.depth[f][yi, xi] - z[inside]) < DEPTH_TOL * z[inside]
+            idx = np.flatnonzero(inside)[seen]
+            vel[idx] = gt.flow3d[f][yi[seen], xi[seen]]
+            found[idx] = True
+    return out
+
+
+def velocity_error(scene: Scene, keyframes: list[int], points: list[np.ndarray],
+                   velocities: list[np.ndarray]) -> dict[str, float]:
+    """Median initial-velocity error on moving and static points (empty without ground truth)."""
+    if scene.ground_truth is None:
+        return {}
+    truth = ground_truth_velocities(scene, keyframes, points)
+    if truth is None or not sum(int(found.sum()) for _, found in truth):
+        return {}
+    gt = np.concatenate([vel[found] for vel, found in truth])
+    v = np.concatenate([np.asarray(est, dtype=np.float64)[found] for est, (_, found) in zip(velocities, truth)])
+    speed, err = np.linalg.norm(gt, axis=1), np.linalg.norm(v - gt, axis=1)
+    moving = speed > MOVING_SPEED
+    out = {"init_velocity_points_scored": float(len(gt))}
+    if moving.any():
+        out["init_velocity_error_moving"] = float(np.median(err[moving]))
+        out["init_velocity_true_speed_moving"] = float(np.median(speed[moving]))
+    if (~moving).any():
+        out["init_velocity_error_static"] = float(np.median(err[~moving]))
+    return out
