@@ -170,6 +170,7 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
         "peak_rss_mb": _peak_rss_mb(),
         "n_gaussians": float(len(model)),
         "relocated_total": float(state.relocated),
+        **state.init_stats,  # what the initial point set is made of (also in init.json)
     })
     _write_metrics(out_dir, metrics)
     clock = time.perf_counter()
