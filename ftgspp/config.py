@@ -86,6 +86,10 @@ class StrategyConfig:
     # official code) or of every "moved" Gaussian, sources and destinations (this project before
     # the gsplat parity work)
     reset_moments: str = "sources"
+    # Which Gaussians are dead: "opacity" (sigmoid(o) <= min_opacity, the paper's and gsplat's rule)
+    # or "clip_opacity" (the opacity the Gaussian reaches anywhere in the clip, o * phi(t), <= min_opacity:
+    # a Gaussian whose time lies far outside the clip is never drawn, yet its o keeps it alive)
+    dead: str = "opacity"
 
 
 @dataclass

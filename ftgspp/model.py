@@ -120,6 +120,13 @@ class FreeTimeGaussians(nn.Module):
         g = self.gate()
         return g + (1.0 - g) * a
 
+    @torch.no_grad()
+    def peak_opacity(self, t0: float, t1: float) -> torch.Tensor:
+        """The largest opacity o·φ(t) each Gaussian reaches for t in ``[t0, t1]``, ``[N]``: φ peaks
+        at the Gaussian's own time μt (the gate only lifts it), so at μt clipped to the window."""
+        t = self.params["times"].detach().clamp(t0, t1)
+        return self.base_opacity() * self.temporal_opacity(t)
+
     def base_opacity(self) -> torch.Tensor:
         """sigmoid(o), ``[N]``."""
         return torch.sigmoid(self.params["opacities"])

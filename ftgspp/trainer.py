@@ -171,6 +171,8 @@ def train(cfg: TrainConfig, scene: Scene, tracker: Tracker | None = None) -> Run
         "n_gaussians": float(len(model)),
         "relocated_total": float(state.relocated),
         **state.init_stats,  # what the initial point set is made of (also in init.json)
+        # Gaussians drawn nowhere in the clip: their opacity there never exceeds the relocation threshold
+        "n_faded": float((model.peak_opacity(*clip_window(scene)) <= cfg.strategy.min_opacity).sum()),
     })
     _write_metrics(out_dir, metrics)
     clock = time.perf_counter()
@@ -209,6 +211,11 @@ def _lpips_loss_net(cfg: TrainConfig, device: torch.device) -> torch.nn.Module |
     return load_lpips("alex", device=device)  # missing weights: one-line InputError naming the fix
 
 
+def clip_window(scene: Scene) -> tuple[float, float]:
+    """The times the training frames span (seconds): where a Gaussian can be drawn."""
+    return float(scene.times[0]), float(scene.times[-1])
+
+
 def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_dir: Path,
           lpips_net: torch.nn.Module | None) -> None:
     """The optimisation loop from iteration ``st.step`` to ``cfg.iterations``."""
@@ -221,6 +228,7 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
     bar = tqdm(range(start, cfg.iterations), initial=start, total=cfg.iterations, disable=not cfg.progress,
                desc="train", unit="it", dynamic_ncols=True, mininterval=1.0)
     fast_adam = plain_fused_adam(st.optimizer)  # optimizer.step()'s bits with less Python (ftgspp.optim)
+    window = clip_window(scene)
     t_session = time.perf_counter()
     t0 = t_session - st.elapsed  # the clock counts training seconds across resumes
     for it in bar:
@@ -247,7 +255,8 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
             st.optimizer.step()
         clear_grads(st.optimizer)
         if st.relocator.due(step):
-            moved = st.relocator.step(st.model.params, st.optimizer, st.reloc_stats, st.reloc_gen)
+            clip = st.model.peak_opacity(*window) if cfg.strategy.dead == "clip_opacity" else None
+            moved = st.relocator.step(st.model.params, st.optimizer, st.reloc_stats, st.reloc_gen, clip)
             st.relocated += int(moved)
             tracker.log_metrics({"relocated": float(moved)}, step=step)
         st.step, st.elapsed = step, time.perf_counter() - t0

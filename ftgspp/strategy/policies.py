@@ -24,13 +24,17 @@ def choose_relocation(
     grad2d: torch.Tensor,  # [N] mean ‖∇ means2d‖ since the last relocation
     min_opacity: float,
     generator: torch.Generator,
+    also_dead: torch.Tensor | None = None,  # [N] bool: dead by another rule (strategy.dead)
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Dead Gaussians (sigmoid(o) ≤ min_opacity) and, for each, a source drawn with replacement.
+    """Dead Gaussians (sigmoid(o) ≤ min_opacity, or ``also_dead``) and, for each, a source drawn
+    with replacement from the others.
 
     Returns ``(dead [M], sources [M])`` as index tensors; both empty when nothing is dead
     or nothing is alive.
     """
     dead_mask = opacity <= min_opacity
+    if also_dead is not None:
+        dead_mask = dead_mask | also_dead.to(dead_mask.device)
     dead = dead_mask.nonzero(as_tuple=True)[0]
     alive = (~dead_mask).nonzero(as_tuple=True)[0]
     if len(dead) == 0 or len(alive) == 0:
@@ -42,6 +46,7 @@ def choose_relocation(
 
 
 MCMC_CLAMPS = ("after", "before")
+DEAD_RULES = ("opacity", "clip_opacity")
 MOMENT_RESETS = ("sources", "moved")  # whose Adam moments a relocation zeroes
 
 

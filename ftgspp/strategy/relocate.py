@@ -22,7 +22,14 @@ from ftgspp.config import StrategyConfig
 from ftgspp.errors import InputError
 from ftgspp.runtime.jit import JIT
 from ftgspp.strategy.ops import copy_gaussians, reset_moments
-from ftgspp.strategy.policies import MCMC_CLAMPS, MOMENT_RESETS, POLICIES, choose_relocation, mcmc_opacity_scale
+from ftgspp.strategy.policies import (
+    DEAD_RULES,
+    MCMC_CLAMPS,
+    MOMENT_RESETS,
+    POLICIES,
+    choose_relocation,
+    mcmc_opacity_scale,
+)
 
 
 @dataclass
@@ -34,7 +41,8 @@ class Relocator:
     def __post_init__(self) -> None:
         for key, value, allowed in (("relocation", self.cfg.relocation, POLICIES),
                                     ("mcmc_clamp", self.cfg.mcmc_clamp, MCMC_CLAMPS),
-                                    ("reset_moments", self.cfg.reset_moments, MOMENT_RESETS)):
+                                    ("reset_moments", self.cfg.reset_moments, MOMENT_RESETS),
+                                    ("dead", self.cfg.dead, DEAD_RULES)):
             if value not in allowed:
                 raise InputError(f"strategy.{key}", f"unknown value '{value}' (choose from {', '.join(allowed)})")
 
@@ -72,11 +80,19 @@ class Relocator:
         optimizer: torch.optim.Optimizer,
         state: dict[str, torch.Tensor],
         generator: torch.Generator,
+        clip_opacity: torch.Tensor | None = None,
     ) -> int:
-        """Relocate dead Gaussians; returns how many moved. Resets the statistics."""
+        """Relocate dead Gaussians; returns how many moved. Resets the statistics.
+
+        ``clip_opacity`` ``[N]``: the opacity each Gaussian reaches within the clip
+        (``FreeTimeGaussians.peak_opacity``); with ``strategy.dead=clip_opacity`` a Gaussian is
+        also dead when it is at most ``min_opacity``."""
         opacity = torch.sigmoid(params["opacities"].detach()).cpu()
         grad2d = (state["grad2d"] / state["count"].clamp_min(1)).cpu()
-        dead, sources = choose_relocation(opacity, grad2d, self.cfg.min_opacity, generator)
+        faded = None
+        if self.cfg.dead == "clip_opacity" and clip_opacity is not None:
+            faded = clip_opacity.detach().cpu() <= self.cfg.min_opacity
+        dead, sources = choose_relocation(opacity, grad2d, self.cfg.min_opacity, generator, faded)
         state["grad2d"].zero_()
         state["count"].zero_()
         if len(dead) == 0:

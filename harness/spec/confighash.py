@@ -42,6 +42,7 @@ HASH_NEUTRAL = {
     "init.matcher": "sift",
     "init.candidates_per_frame": "null",
     "init.flow_combine": "mean",
+    "strategy.dead": "opacity",
 }
 
 

@@ -215,6 +215,7 @@ for _m in (
     Metric("iters_per_second", "iterations/s", 1, HIGHER, RESOURCES, deterministic=False),
     Metric("peak_rss_mb", "peak RSS (MB)", 0, LOWER, RESOURCES, deterministic=False, unit="MB"),
     Metric("n_gaussians", "#Gaussians", 0, LOWER),
+    Metric("n_faded", "Gaussians drawn nowhere in the clip", 0, LOWER),  # opacity there ≤ strategy.min_opacity
     # what the initial point set is made of (ftgspp/init/quality.py; also each run's init.json)
     Metric("init_matcher_dense", "dense matching (1) or SIFT (0)", 0, NEITHER, claimable=False),
     Metric("init_points_total", "real initial points", 0, NEITHER, claimable=False),

@@ -204,3 +204,37 @@ def test_statistics_kernel_adds_the_same_bits_as_the_tensor_formula(monkeypatch)
     assert len(calls) == 20 and torch.isfinite(state["grad2d"]).all()
     assert torch.equal(state["grad2d"], grad2d) and torch.equal(state["count"], count)
     assert 0 < int(count.min()) < int(count.max()) < 20  # rows unseen in some passes, seen in others
+
+
+def test_a_gaussian_drawn_nowhere_in_the_clip_is_dead_only_under_the_clip_rule():
+    """``strategy.dead=clip_opacity``: a Gaussian whose opacity within the clip never exceeds
+    min_opacity (its time far outside the clip) is relocated although its own o is high; the
+    paper's rule (``opacity``) keeps it; sources come from the others only."""
+    params, opt = make_params(n=50, n_dead=0)
+    clip = torch.sigmoid(params["opacities"].detach()).clone()
+    clip[40:] = 1e-4  # ten Gaussians that are never drawn within the clip
+    paper = Relocator(StrategyConfig())
+    assert paper.step(params, opt, paper.initialize_state(50), torch.Generator().manual_seed(1), clip) == 0
+    before = params["means"].detach().clone()
+    faded = Relocator(StrategyConfig(dead="clip_opacity"))
+    assert faded.step(params, opt, faded.initialize_state(50), torch.Generator().manual_seed(1), clip) == 10
+    moved_to = params["means"].detach()[40:]
+    sources = (moved_to[:, None, :] == before[None, :40, :]).all(-1).any(-1)  # copies of the drawn ones
+    assert bool(sources.all())
+    with pytest.raises(InputError, match="strategy.dead"):
+        Relocator(StrategyConfig(dead="never"))
+
+
+def test_peak_opacity_in_a_window_is_at_the_gaussians_own_time_clipped_to_it():
+    from ftgspp.config import InitConfig, ModelConfig
+    from ftgspp.model import FreeTimeGaussians
+
+    n = 3
+    times = np.array([0.5, -2.0, 3.0], np.float32)  # inside, before and after the window [0, 1]
+    model = FreeTimeGaussians.from_points(np.zeros((n, 3), np.float32), np.full((n, 3), 0.5, np.float32), times,
+                                          np.zeros((n, 3), np.float32), np.ones(n, np.float32), ModelConfig(),
+                                          InitConfig(), "cpu")
+    o, s = model.base_opacity().detach(), model.temporal_scale().detach()
+    expect = o * torch.exp(-0.5 * ((torch.tensor([0.5, 0.0, 1.0]) - torch.from_numpy(times)) / s) ** 2)
+    torch.testing.assert_close(model.peak_opacity(0.0, 1.0), expect)
+    assert model.peak_opacity(0.0, 1.0)[0] == o[0]  # at its own time φ = 1
