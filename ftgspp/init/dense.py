@@ -37,6 +37,7 @@ import numpy as np
 from ftgspp.config import InitConfig
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.init.flow import forward_backward_weight, get_flow_model
+from ftgspp.init.two_view import fundamental_matrix, neighbor_pairs, pixel_colors, project, sampson_distance
 
 log = logging.getLogger("ftgspp.init")
 
@@ -85,8 +86,6 @@ def triangulate_keyframe_dense(
     scene: Scene, frame: int, cfg: InitConfig, near: float, far: float
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Points ``[M, 3]``, colours ``[M, 3]`` (float32) and counts of loaded frame ``frame``."""
-    from ftgspp.init.points import _colors, fundamental_matrix, neighbor_pairs, project, sampson_distance
-
     name = getattr(cfg, "flow_model", "dis")
     flow_model = get_flow_model(name, preset="fine") if name == "dis" else get_flow_model(name)
     pairs = neighbor_pairs(scene, cfg.neighbor_cams)
@@ -121,7 +120,7 @@ def triangulate_keyframe_dense(
         used[a][ia[keep]] = True
         used[b][ib[keep]] = True
         points.append(X[keep])
-        colors.append(0.5 * (_colors(images[a], pa[keep]) + _colors(images[b], pb[keep])))
+        colors.append(0.5 * (pixel_colors(images[a], pa[keep]) + pixel_colors(images[b], pb[keep])))
     P = np.concatenate(points) if points else np.zeros((0, 3))
     C = np.concatenate(colors) if colors else np.zeros((0, 3))
     cap = candidates_per_frame(scene, cfg)

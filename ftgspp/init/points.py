@@ -43,6 +43,13 @@ from ftgspp.config import InitConfig
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.errors import InputError
 from ftgspp.init.quality import init_stats, velocity_error
+from ftgspp.init.two_view import (
+    fundamental_matrix,
+    neighbor_pairs,
+    pixel_colors,
+    project,
+    sampson_distance,
+)
 from ftgspp.init.velocity import check_velocity_mode, keyframe_velocities
 
 log = logging.getLogger("ftgspp.init")
@@ -125,53 +132,7 @@ def depth_range(scene: Scene, cfg: InitConfig) -> tuple[float, float]:
     return float(near), float(far)
 
 
-def fundamental_matrix(cam_a: Camera, cam_b: Camera) -> np.ndarray:
-    """F [3, 3] with ``x_b^T F x_a = 0`` for pixels of the same world point in a and b."""
-    R = cam_b.R @ cam_a.R.T  # a-camera to b-camera rotation
-    t = cam_b.T - R @ cam_a.T
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    E = tx @ R
-    return np.linalg.inv(cam_b.K).T @ E @ np.linalg.inv(cam_a.K)
-
-
-def sampson_distance(F: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> np.ndarray:
-    """First-order geometric epipolar error in pixels. pa, pb [M, 2] -> [M]."""
-    xa = np.hstack([pa, np.ones((len(pa), 1))])  # [M, 3]
-    xb = np.hstack([pb, np.ones((len(pb), 1))])
-    Fxa = xa @ F.T  # [M, 3] epipolar lines in b
-    Ftxb = xb @ F  # [M, 3] epipolar lines in a
-    num = np.sum(xb * Fxa, axis=1) ** 2
-    den = Fxa[:, 0] ** 2 + Fxa[:, 1] ** 2 + Ftxb[:, 0] ** 2 + Ftxb[:, 1] ** 2
-    return np.sqrt(num / np.maximum(den, 1e-300))
-
-
-def project(cam: Camera, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted pixels [M, 2] and camera-space depths [M] of world points X [M, 3]."""
-    Xc = X @ cam.R.T + cam.T  # [M, 3]
-    z = Xc[:, 2]
-    uv = Xc @ cam.K.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return uv[:, :2] / uv[:, 2:3], z
-
-
 # --------------------------------------------------------------------------- matching
-
-
-def neighbor_pairs(scene: Scene, k: int) -> list[tuple[int, int]]:
-    """Unordered pairs (camera indices into ``scene.cameras``, i < j): each training camera
-    with its ``k`` nearest training cameras by centre distance, each pair once."""
-    ids = list(scene.train_ids)
-    if len(ids) < 2:
-        return []
-    centers = np.stack([scene.cameras[i].center for i in ids])
-    k = max(1, min(int(k), len(ids) - 1))
-    _, nn = cKDTree(centers).query(centers, k=k + 1)  # [C, k+1], column 0 is (usually) itself
-    pairs = set()
-    for a, row in enumerate(nn):
-        for b in row:
-            if b != a:
-                pairs.add((min(ids[a], ids[b]), max(ids[a], ids[b])))
-    return sorted(pairs)
 
 
 @dataclass
@@ -216,14 +177,6 @@ def _first_occurrence(ids: np.ndarray) -> np.ndarray:
     return mask
 
 
-def _colors(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
-    """RGB in [0, 1] at the nearest pixel. pix [M, 2] -> [M, 3] float64."""
-    h, w = image.shape[:2]
-    x = np.clip(np.rint(pix[:, 0]).astype(np.int64), 0, w - 1)
-    y = np.clip(np.rint(pix[:, 1]).astype(np.int64), 0, h - 1)
-    return image[y, x].astype(np.float64) / 255.0
-
-
 def triangulate_keyframe(
     scene: Scene, frame: int, cfg: InitConfig, near: float, far: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -264,7 +217,7 @@ def triangulate_keyframe(
         used[a][va.loc[m[:, 0]]] = True
         used[b][vb.loc[m[:, 1]]] = True
         points.append(X)
-        colors.append(0.5 * (_colors(va.image, va.pix[m[:, 0]]) + _colors(vb.image, vb.pix[m[:, 1]])))
+        colors.append(0.5 * (pixel_colors(va.image, va.pix[m[:, 0]]) + pixel_colors(vb.image, vb.pix[m[:, 1]])))
     P = np.concatenate(points).astype(np.float32) if points else np.zeros((0, 3), np.float32)
     C = np.concatenate(colors).astype(np.float32) if colors else np.zeros((0, 3), np.float32)
     log.info(

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ftgspp.data.scene import Scene
+from ftgspp.init.two_view import project
 
 DEPTH_TOL = 0.02  # relative depth agreement that counts as "this camera sees the point"
 MOVING_SPEED = 1e-3  # units/s: slower ground truth counts as static
@@ -41,7 +42,6 @@ def ground_truth_velocities(scene: Scene, keyframes: list[int], points: list[np.
     of the points some training camera sees (NaN velocity elsewhere); None without ground truth.
     One camera's ground truth is loaded at a time."""
     from ftgspp.diagnostics.motion import load_ground_truth  # diagnostics read the same files
-    from ftgspp.init.points import project
 
     out = [(np.full((len(p), 3), np.nan), np.zeros(len(p), dtype=bool)) for p in points]
     for cam_id in scene.train_ids:
