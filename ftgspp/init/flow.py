@@ -87,7 +87,8 @@ class DISFlow:
         self.preset = preset
 
     def params(self) -> dict:
-        return {"preset": self.preset, "opencv": cv2.__version__}
+        extra = FINE_SETTINGS if self.preset == "fine" else {}
+        return {"preset": self.preset, "opencv": cv2.__version__, **extra}
 
     def __call__(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
         g0 = cv2.cvtColor(np.ascontiguousarray(img0), cv2.COLOR_RGB2GRAY)

@@ -1,7 +1,7 @@
 """What an initialisation is made of, and, on a synthetic scene, how right its velocities are.
 
-``init_stats`` counts the real (triangulated) points per keyframe and the share of the budget
-they fill (the rest are jittered copies). ``velocity_error`` scores the initial velocities
+``init_stats`` counts the real (triangulated) points per keyframe and the share they fill of the
+budget left after ``init.random_points`` (the rest of it is jittered copies). ``velocity_error`` scores the initial velocities
 against the scene's ground truth (``gt/depth`` and ``gt/flow3d``): each real point of keyframe
 f is looked up in the first training camera that sees it (its projected depth within
 ``DEPTH_TOL`` of the ground-truth depth at its pixel: the visible surface is the point), and
@@ -13,10 +13,14 @@ reads as a fraction of the motion.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from ftgspp.data.scene import Scene
 from ftgspp.init.two_view import project
+
+log = logging.getLogger("ftgspp.init")
 
 DEPTH_TOL = 0.02  # relative depth agreement that counts as "this camera sees the point"
 MOVING_SPEED = 1e-3  # units/s: slower ground truth counts as static
@@ -64,10 +68,15 @@ def ground_truth_velocities(scene: Scene, keyframes: list[int], points: list[np.
 
 def velocity_error(scene: Scene, keyframes: list[int], points: list[np.ndarray],
                    velocities: list[np.ndarray]) -> dict[str, float]:
-    """Median initial-velocity error on moving and static points (empty without ground truth)."""
+    """Median initial-velocity error on moving and static points (empty without ground truth, or
+    when the ground-truth files cannot be read: a warning, never a failed run)."""
     if scene.ground_truth is None:
         return {}
-    truth = ground_truth_velocities(scene, keyframes, points)
+    try:
+        truth = ground_truth_velocities(scene, keyframes, points)
+    except (OSError, ValueError, IndexError) as exc:
+        log.warning("init: ground truth of %s unreadable (%s); initial velocities not scored", scene.root, exc)
+        return {}
     if truth is None or not sum(int(found.sum()) for _, found in truth):
         return {}
     gt = np.concatenate([vel[found] for vel, found in truth])

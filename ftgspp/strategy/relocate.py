@@ -90,7 +90,9 @@ class Relocator:
         opacity = torch.sigmoid(params["opacities"].detach()).cpu()
         grad2d = (state["grad2d"] / state["count"].clamp_min(1)).cpu()
         faded = None
-        if self.cfg.dead == "clip_opacity" and clip_opacity is not None:
+        if self.cfg.dead == "clip_opacity":
+            if clip_opacity is None:
+                raise ValueError("strategy.dead=clip_opacity needs each Gaussian's opacity within the clip")
             faded = clip_opacity.detach().cpu() <= self.cfg.min_opacity
         dead, sources = choose_relocation(opacity, grad2d, self.cfg.min_opacity, generator, faded)
         state["grad2d"].zero_()

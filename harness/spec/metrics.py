@@ -222,7 +222,7 @@ for _m in (
     Metric("init_points_per_keyframe_min", "real points, fewest in a keyframe", 0, NEITHER, claimable=False),
     Metric("init_points_per_keyframe_median", "real points per keyframe", 0, NEITHER, claimable=False),
     Metric("init_points_per_keyframe_max", "real points, most in a keyframe", 0, NEITHER, claimable=False),
-    Metric("init_real_share", "real points' share of the budget", 2, HIGHER, claimable=False),
+    Metric("init_real_share", "real points' share of the budget (random points aside)", 2, HIGHER, claimable=False),
     Metric("init_velocity_points_scored", "initial points scored against ground truth", 0, NEITHER, claimable=False),
     Metric("init_velocity_error_moving", "initial velocity error, moving (units/s)", 3, LOWER, claimable=False,
            unit="units/s"),

@@ -223,6 +223,8 @@ def test_a_gaussian_drawn_nowhere_in_the_clip_is_dead_only_under_the_clip_rule()
     assert bool(sources.all())
     with pytest.raises(InputError, match="strategy.dead"):
         Relocator(StrategyConfig(dead="never"))
+    with pytest.raises(ValueError, match="clip_opacity"):  # the rule cannot fall back silently
+        faded.step(params, opt, faded.initialize_state(50), torch.Generator().manual_seed(1))
 
 
 def test_peak_opacity_in_a_window_is_at_the_gaussians_own_time_clipped_to_it():
