@@ -41,6 +41,7 @@ from __future__ import annotations
 import itertools
 import math
 import warnings
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -242,20 +243,27 @@ def _contrast(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Re
                       f"{r.detail} = {r.effect:+.3f}" for r in results))
 
 
-def _decoupled(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
+def _seed_aligned(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...], pairs: Callable
+                  ) -> Iterator[tuple[str, str, str, pd.DataFrame, pd.DataFrame]]:
+    """``(scene, a, b, x, y)`` for every scene and variant pair ``pairs(variants, 2)`` (combinations
+    or permutations) with at least 3 seeds that logged both metrics: ``x`` of ``claim.metric``
+    and ``y`` of ``claim.versus``, wide by variant, on the same seeds."""
     variants = list(dict.fromkeys(df.variant))
-    tried = []
     for scene in scenes or tuple(dict.fromkeys(df.scene)):
-        for va, vb in itertools.combinations(variants, 2):
+        for va, vb in pairs(variants, 2):
             x = wide(df, claim.metric, [va, vb], (scene,))
             y = wide(df, claim.versus, [va, vb], (scene,)).reindex(x.index).dropna()
-            if len(y) < 3:
-                continue
-            x = x.loc[y.index]
-            p_equal = stats.tost_paired((x[va] - x[vb]).to_numpy(float), claim.sesoi)
-            dy = (y[va] - y[vb]).to_numpy(float)
-            differs = sps.ttest_1samp(dy, 0.0)
-            tried.append((max(p_equal, float(differs.pvalue)), scene, va, vb, dy, differs, p_equal))
+            if len(y) >= 3:
+                yield scene, va, vb, x.loc[y.index], y
+
+
+def _decoupled(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
+    tried = []
+    for scene, va, vb, x, y in _seed_aligned(df, claim, scenes, itertools.combinations):
+        p_equal = stats.tost_paired((x[va] - x[vb]).to_numpy(float), claim.sesoi)
+        dy = (y[va] - y[vb]).to_numpy(float)
+        differs = sps.ttest_1samp(dy, 0.0)
+        tried.append((max(p_equal, float(differs.pvalue)), scene, va, vb, dy, differs, p_equal))
     if not tried:
         raise ValueError("no scene with 3 seeds of two variants that logged both metrics")
     p, scene, va, vb, dy, res, p_equal = min(tried, key=lambda t: t[0])
@@ -273,22 +281,15 @@ def _dissociated(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) ->
     p per pair = the larger of the two, Bonferroni over every ordered pair tried."""
     from harness.spec.metrics import lower_is_better
 
-    variants = list(dict.fromkeys(df.variant))
     sign_m = -1.0 if lower_is_better(claim.metric) else 1.0  # turns "better" into "higher"
     sign_v = -1.0 if lower_is_better(claim.versus) else 1.0
     tried = []
-    for scene in scenes or tuple(dict.fromkeys(df.scene)):
-        for vx, vy in itertools.permutations(variants, 2):
-            x = wide(df, claim.metric, [vx, vy], (scene,))
-            y = wide(df, claim.versus, [vx, vy], (scene,)).reindex(x.index).dropna()
-            if len(y) < 3:
-                continue
-            x = x.loc[y.index]
-            dm = sign_m * (x[vx] - x[vy]).to_numpy(float)  # > 0: x renders better
-            dv = sign_v * (y[vx] - y[vy]).to_numpy(float)  # < 0: x moves worse
-            p_not_worse = float(sps.ttest_1samp(dm, -claim.sesoi, alternative="greater").pvalue)
-            worse = sps.ttest_1samp(dv, 0.0, alternative="less")
-            tried.append((max(p_not_worse, float(worse.pvalue)), scene, vx, vy, dm, dv, p_not_worse))
+    for scene, vx, vy, x, y in _seed_aligned(df, claim, scenes, itertools.permutations):
+        dm = sign_m * (x[vx] - x[vy]).to_numpy(float)  # > 0: x renders better
+        dv = sign_v * (y[vx] - y[vy]).to_numpy(float)  # < 0: x moves worse
+        p_not_worse = float(sps.ttest_1samp(dm, -claim.sesoi, alternative="greater").pvalue)
+        worse = sps.ttest_1samp(dv, 0.0, alternative="less")
+        tried.append((max(p_not_worse, float(worse.pvalue)), scene, vx, vy, dm, dv, p_not_worse))
     if not tried:
         raise ValueError("no scene with 3 seeds of two variants that logged both metrics")
     p, scene, vx, vy, dm, dv, p_not_worse = min(tried, key=lambda t: t[0])

@@ -103,3 +103,30 @@ def fake_generate(out: Path, layout: str, preset: str, seed: int, **extra: objec
     out.mkdir(parents=True, exist_ok=True)
     (out / "scene.txt").write_text(f"{layout} {preset} {seed} {sorted(extra.items())}")
     return out
+
+
+# A two-variant study of the fake trainer, for report and index tests (tests/harness/test_claims_report.py,
+# test_report_currency.py).
+MINI_STUDY = {
+    "name": "mini",
+    "question": "Does colour correction help the fake trainer?",
+    "baseline": "baseline",
+    "variants": {"baseline": [], "cc": ["model.color_correction=true"]},
+    "metrics": ["psnr"],
+    "plots": [],
+    "claims": [
+        {"id": "cc_mean", "claim": "CC raises PSNR.", "metric": "psnr", "test": "mean", "a": "cc", "b": "baseline",
+         "expect": "higher", "pair": "none"},
+        {"id": "cc_spread", "claim": "CC lowers the spread.", "metric": "psnr", "test": "variance", "a": "cc",
+         "b": "baseline", "expect": "lower"},
+        {"id": "motion", "claim": "Not logged by the fake.", "metric": "flicker_static", "test": "mean", "a": "cc",
+         "b": "baseline", "expect": "lower", "group": "extension"},
+        {"id": "psnr_ssim", "claim": "Some pair has equal PSNR but different SSIM.", "metric": "psnr",
+         "versus": "ssim1", "test": "decoupled", "expect": "exists"},
+    ],
+    "profiles": {
+        "quick": {"seeds": 3, "overrides": ["profile=smoke"], "run_seconds": 5, "command": "study run mini",
+                  "scenes": [{"name": "easy", "synth": {"preset": "studio", "seed": 0}}]},
+        "paper": {"seeds": 2, "overrides": ["profile=paper"], "scenes": [{"name": "real", "overrides": ["data.path=/x"]}]},
+    },
+}

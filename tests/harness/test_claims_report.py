@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from fakes import fake_generate, fake_train
+from fakes import MINI_STUDY as MINI, fake_generate, fake_train
 
 from harness.analysis import verdicts as V
 from harness.report.claims_table import claims_latex, claims_markdown
@@ -17,30 +17,6 @@ from harness.report.fmt import p_text
 from harness.report.index import StudyClaims, decide_all, index_markdown
 from harness.spec.paper_register import PaperRow, Register, Statement
 from harness.spec.study_schema import ClaimSpec
-
-MINI = {
-    "name": "mini",
-    "question": "Does colour correction help the fake trainer?",
-    "baseline": "baseline",
-    "variants": {"baseline": [], "cc": ["model.color_correction=true"]},
-    "metrics": ["psnr"],
-    "plots": [],
-    "claims": [
-        {"id": "cc_mean", "claim": "CC raises PSNR.", "metric": "psnr", "test": "mean", "a": "cc", "b": "baseline",
-         "expect": "higher", "pair": "none"},
-        {"id": "cc_spread", "claim": "CC lowers the spread.", "metric": "psnr", "test": "variance", "a": "cc",
-         "b": "baseline", "expect": "lower"},
-        {"id": "motion", "claim": "Not logged by the fake.", "metric": "flicker_static", "test": "mean", "a": "cc",
-         "b": "baseline", "expect": "lower", "group": "extension"},
-        {"id": "psnr_ssim", "claim": "Some pair has equal PSNR but different SSIM.", "metric": "psnr",
-         "versus": "ssim1", "test": "decoupled", "expect": "exists"},
-    ],
-    "profiles": {
-        "quick": {"seeds": 3, "overrides": ["profile=smoke"], "run_seconds": 5, "command": "study run mini",
-                  "scenes": [{"name": "easy", "synth": {"preset": "studio", "seed": 0}}]},
-        "paper": {"seeds": 2, "overrides": ["profile=paper"], "scenes": [{"name": "real", "overrides": ["data.path=/x"]}]},
-    },
-}
 
 
 def frame() -> pd.DataFrame:

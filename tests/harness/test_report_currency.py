@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from fakes import fake_generate, fake_train
+from fakes import MINI_STUDY, fake_generate, fake_train
 
 from ftgspp.errors import InputError
 from harness.analysis import verdicts as V
@@ -21,24 +21,12 @@ from harness.report.index import StudyClaims, index_markdown
 from harness.spec.throughput import QUICK_RUNS_PER_HOUR, estimate
 
 ROOT = Path(__file__).resolve().parents[2]
-STUDY = {
-    "name": "mini",
-    "question": "Does colour correction help the fake trainer?",
-    "baseline": "baseline",
-    "variants": {"baseline": [], "cc": ["model.color_correction=true"]},
-    "metrics": ["psnr"],
-    "plots": [],
-    "claims": [
-        {"id": "cc_mean", "claim": "CC raises PSNR.", "metric": "psnr", "test": "mean", "a": "cc", "b": "baseline",
-         "expect": "higher", "pair": "none"},
-        {"id": "cc_spread", "claim": "CC lowers the spread.", "metric": "psnr", "test": "variance", "a": "cc",
-         "b": "baseline", "expect": "lower"},
-    ],
+STUDY = {  # MINI_STUDY's first two claims, its quick profile run 2 at a time
+    **MINI_STUDY,
+    "claims": MINI_STUDY["claims"][:2],
     "profiles": {
-        "quick": {"seeds": 3, "overrides": ["profile=smoke"], "run_seconds": 5, "jobs": 2,
-                  "scenes": [{"name": "easy", "synth": {"preset": "studio", "seed": 0}}]},
-        "paper": {"seeds": 2, "overrides": ["profile=paper"],
-                  "scenes": [{"name": "real", "overrides": ["data.path=/x"]}]},
+        "quick": {k: v for k, v in {**MINI_STUDY["profiles"]["quick"], "jobs": 2}.items() if k != "command"},
+        "paper": MINI_STUDY["profiles"]["paper"],
     },
 }
 OTHER = "0ther0ther00"  # a trainer fingerprint no checkout has
