@@ -21,9 +21,10 @@ A pixel of a pair's two cameras yields at most one point per keyframe, as a SIFT
 pair skips pixels an earlier pair already used in either of its cameras. Pairs with no camera in
 common can still triangulate one surface twice (on the two-plane test scene a third camera's
 pixel holds a median of 4 points before the cap); the even cap below thins them, and the kNN
-spacing is floored so initial scales stay positive. The candidates are then cut to ``init.candidates_per_frame`` (``None``: half the
-pixel count of one training view, the paper's density) by an even, deterministic subsample, so
-a point set does not depend on the optimisation seed. The budget fit in ``points.initialize``
+spacing is floored so initial scales stay positive. The candidates are then cut to
+``init.candidates_per_frame`` (``None``: half the pixel count of one training view, the paper's
+density) by an even, deterministic subsample, so a point set does not depend on the optimisation
+seed. The budget fit in ``points.initialize``
 samples from there.
 """
 
@@ -37,7 +38,7 @@ import numpy as np
 from ftgspp.config import InitConfig
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.init.flow import forward_backward_weight, get_flow_model
-from ftgspp.init.two_view import fundamental_matrix, neighbor_pairs, pixel_colors, project, sampson_distance
+from ftgspp.init.two_view import fundamental_matrix, neighbor_pairs, pixel_colors, sampson_distance, triangulate_pair
 
 log = logging.getLogger("ftgspp.init")
 
@@ -108,13 +109,7 @@ def triangulate_keyframe_dense(
         counts["epipolar"] += len(pa)
         if not len(pa):
             continue
-        Xh = cv2.triangulatePoints(cam_a.projection, cam_b.projection, ua.T.copy(), ub.T.copy())  # [4, M]
-        finite = np.abs(Xh[3]) > 1e-12
-        X = (Xh[:3] / np.where(finite, Xh[3], 1.0)).T  # [M, 3]
-        keep = finite
-        for cam, p in ((cam_a, ua), (cam_b, ub)):
-            uv, z = project(cam, X)
-            keep &= (z > 0) & (z >= near) & (z <= far) & (np.linalg.norm(uv - p, axis=1) < cfg.max_reproj_px)
+        X, keep = triangulate_pair(cam_a, cam_b, ua, ub, near, far, cfg.max_reproj_px)
         # one point per pixel of b too: several a-pixels can land in one b-pixel
         keep &= _first(ib, keep)
         used[a][ia[keep]] = True

@@ -47,8 +47,8 @@ from ftgspp.init.two_view import (
     fundamental_matrix,
     neighbor_pairs,
     pixel_colors,
-    project,
     sampson_distance,
+    triangulate_pair,
 )
 from ftgspp.init.velocity import check_velocity_mode, keyframe_velocities
 
@@ -202,15 +202,7 @@ def triangulate_keyframe(
         n_epipolar += len(m)
         if len(m) == 0:
             continue
-        Xh = cv2.triangulatePoints(cam_a.projection, cam_b.projection, pa.T.copy(), pb.T.copy())  # [4, M]
-        w = Xh[3]
-        finite = np.abs(w) > 1e-12
-        X = (Xh[:3] / np.where(finite, w, 1.0)).T  # [M, 3]
-        keep = finite
-        for cam, p in ((cam_a, pa), (cam_b, pb)):
-            uv, z = project(cam, X)
-            err = np.linalg.norm(uv - p, axis=1)
-            keep &= (z > 0) & (z >= near) & (z <= far) & (err < cfg.max_reproj_px)
+        X, keep = triangulate_pair(cam_a, cam_b, pa, pb, near, far, cfg.max_reproj_px)
         m, X = m[keep], X[keep]
         unique = _first_occurrence(va.loc[m[:, 0]]) & _first_occurrence(vb.loc[m[:, 1]])
         m, X = m[unique], X[unique]

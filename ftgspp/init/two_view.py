@@ -6,6 +6,7 @@ and by the ground-truth scoring of an initialisation (ftgspp/init/quality.py).
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -64,3 +65,19 @@ def pixel_colors(image: np.ndarray, pix: np.ndarray) -> np.ndarray:
     x = np.clip(np.rint(pix[:, 0]).astype(np.int64), 0, w - 1)
     y = np.clip(np.rint(pix[:, 1]).astype(np.int64), 0, h - 1)
     return image[y, x].astype(np.float64) / 255.0
+
+
+def triangulate_pair(cam_a: Camera, cam_b: Camera, pa: np.ndarray, pb: np.ndarray, near: float, far: float,
+                     max_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``X [M, 3]`` triangulated from undistorted pixel pairs ``pa``, ``pb`` ``[M, 2]``
+    (``cv2.triangulatePoints``) and the mask ``[M]`` of those in front of both cameras, with
+    camera depth in ``[near, far]``, reprojecting within ``max_px`` in both views."""
+    Xh = cv2.triangulatePoints(cam_a.projection, cam_b.projection, pa.T.copy(), pb.T.copy())  # [4, M]
+    w = Xh[3]
+    finite = np.abs(w) > 1e-12
+    X = (Xh[:3] / np.where(finite, w, 1.0)).T  # [M, 3]
+    keep = finite
+    for cam, p in ((cam_a, pa), (cam_b, pb)):
+        uv, z = project(cam, X)
+        keep &= (z > 0) & (z >= near) & (z <= far) & (np.linalg.norm(uv - p, axis=1) < max_px)
+    return X, keep
