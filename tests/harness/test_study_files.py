@@ -212,3 +212,17 @@ def test_the_spec_is_typed_and_frozen(tmp_path: Path) -> None:
         study.table.layout = TableLayout.metrics_x_scenes  # type: ignore[misc]
     with pytest.raises(dataclasses.FrozenInstanceError):
         study.profile("quick").scenes[0].seeds = 3  # type: ignore[misc]
+
+
+def test_quick_learning_rate_ladders_are_multiples_of_the_tuned_rate() -> None:
+    # a rung "lr x3" means three times the quick profile's tuned lr.scale: a ladder whose `times`
+    # still holds an old tuned rate would put every rung at the wrong learning rate
+    quick = Path(__file__).resolve().parents[2] / "conf" / "profile" / "quick.yaml"
+    tuned = yaml.safe_load(quick.read_text())["lr"]["scale"]
+    seen = 0
+    for name in list_studies():
+        for ladder in load_study(name).profiles["quick"].ladders.values():
+            if ladder.override == "lr.scale":
+                assert ladder.times == tuned, f"{name}: lr ladder times {ladder.times}, quick lr.scale {tuned}"
+                seen += 1
+    assert seen >= 2  # stability and collapse
