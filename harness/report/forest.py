@@ -66,10 +66,11 @@ def forest_plot(frame: pd.DataFrame, path: Path, title: str = "Every counted cla
         for _, p in paper_points(r):
             ax.plot([p], [y], "D", mfc="none", mec="black", ms=6, zorder=4)
         labels.append(f"{r.study}: {r.id}  [{r.group}]")
+    ax.set_xscale("symlog", linthresh=3, linscale=1.5)  # ±3 SESOI linear; a 40-SESOI effect does not squash the rest
     ax.set_yticks(range(len(rows)), labels, fontsize=8)
     ax.invert_yaxis()
-    ax.set_xlabel("effect / smallest effect of interest, the claimed direction to the right"
-                  " (SD ratios: log ratio / log SESOI); 95% CI")
+    ax.set_xlabel("effect / smallest effect of interest (symlog), the claimed direction to the right;\n"
+                  "SD ratios: log ratio / log SESOI; 95% CI")
     handles = [plt.Line2D([], [], color=c, marker="o", lw=2, label=v) for v, c in COLOURS.items()]
     handles += [plt.Line2D([], [], color="black", marker="D", mfc="none", lw=0, label="paper's effect (per dataset)")]
     ax.legend(handles=handles, fontsize=7, loc="lower right", framealpha=0.9)

@@ -136,7 +136,8 @@ def ladder_plot(table: pd.DataFrame, runs: pd.DataFrame, scenes: Sequence[StudyS
     """One column per ladder: mean ± std PSNR (collapsed runs as hollow triangles) on top,
     failure rate with crashed/diverged/collapsed counts below; one line per method."""
     lads = ladders_of(scenes)
-    fig, axes = plt.subplots(2, len(lads), figsize=(4.2 * len(lads), 7.0), squeeze=False, sharey="row",
+    fig, axes = plt.subplots(2, len(lads), figsize=(min(4.2, 15.0 / len(lads)) * len(lads), 7.0), squeeze=False,
+                             sharey="row",
                              constrained_layout=True)
     methods = list(dict.fromkeys(table.loc[table.role == METHOD, "variant"]))
     for col, lad in enumerate(lads):

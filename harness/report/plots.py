@@ -30,20 +30,42 @@ def save_figure(fig: plt.Figure, path: Path) -> Path:
     return path
 
 
+# A report figure is at most ~2,000 px wide at 120 dpi (harness/report/figure_checks.py): panels
+# wrap onto further rows rather than widen the figure.
+MAX_WIDTH_IN = 15.5
+
+
+def panel_grid(n: int, panel_w: float, panel_h: float, **kw) -> tuple[plt.Figure, list[plt.Axes]]:
+    """``n`` panels of about ``panel_w`` x ``panel_h`` inches, wrapped into rows no wider than
+    ``MAX_WIDTH_IN``; the unused cells of the last row are hidden. Returns the figure and the
+    ``n`` axes in reading order."""
+    cols = max(1, min(n, int(MAX_WIDTH_IN // panel_w)))
+    rows = -(-n // cols)
+    width = min(MAX_WIDTH_IN, panel_w * cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(width, panel_h * rows), squeeze=False, constrained_layout=True, **kw)
+    flat = list(axes.flat)
+    for ax in flat[n:]:
+        ax.set_visible(False)
+    return fig, flat[:n]
+
+
 def strip_plot(df: pd.DataFrame, metric: str, variants: list[str], scenes: list[str],
                labels: dict[str, str], title: str, path: Path) -> Path:
-    """Per-run values of ``metric`` per variant, one panel per scene."""
-    fig, axes = plt.subplots(1, len(scenes), figsize=(max(4.0, 1.1 * len(variants) + 1.5) * len(scenes), 4.2),
-                             squeeze=False, sharey=True, constrained_layout=True)
+    """Per-run values of ``metric`` per variant, one panel per scene holding the variants run
+    there (a variant keeps its colour in every panel), panels wrapped into rows."""
+    present = {s: [v for v in variants if ((df.variant == v) & (df.scene == s)).any()] or variants for s in scenes}
+    widest = max(len(vs) for vs in present.values())
+    fig, axes = panel_grid(len(scenes), max(3.2, 0.9 * widest + 1.4), 4.2, sharey=True)
     rng = np.random.default_rng(0)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for ax, scene in zip(axes[0], scenes):
+    for ax, scene in zip(axes, scenes):
         ticks = []
-        for i, v in enumerate(variants):
+        shown = present[scene]
+        for i, v in enumerate(shown):
             sub = df[(df.variant == v) & (df.scene == scene)]
             ok = sub[sub.status == "FINISHED"]
             vals = ok[metric].dropna().to_numpy(dtype=float) if metric in ok else np.array([])
-            color = colors[i % len(colors)]
+            color = colors[variants.index(v) % len(colors)]
             if len(vals):
                 x = i + rng.uniform(-0.12, 0.12, len(vals))
                 ax.scatter(x, vals, s=22, color=color, alpha=0.8, zorder=3, label="run" if i == 0 else None)
@@ -52,15 +74,16 @@ def strip_plot(df: pd.DataFrame, metric: str, variants: list[str], scenes: list[
                             zorder=4, label="mean ± std" if i == 0 else None)
             n_bad = int((sub.status != "FINISHED").sum())
             ticks.append(v + (f"\n({n_bad} failed)" if n_bad else ""))
-        ax.set_xticks(range(len(variants)), ticks, rotation=20 if len(variants) > 3 else 0, ha="center")
-        ax.set_title(labels.get(scene, scene))
-        ax.set_xlabel("variant")
+        ax.set_xticks(range(len(shown)), ticks, rotation=30 if len(shown) > 2 else 0,
+                      ha="right" if len(shown) > 2 else "center", fontsize=8)
+        ax.set_title(labels.get(scene, scene), fontsize=10)
         ax.grid(axis="y", alpha=0.3)
-        ax.set_xlim(-0.6, len(variants) - 0.4)
-    axes[0][0].set_ylabel(pretty(metric))
-    handles, names = axes[0][0].get_legend_handles_labels()
+        ax.set_xlim(-0.6, len(shown) - 0.4)
+        ax.yaxis.set_tick_params(labelleft=True)
+    axes[0].set_ylabel(pretty(metric))
+    handles, names = axes[0].get_legend_handles_labels()
     if handles:
-        axes[0][0].legend(handles, names, loc="best", fontsize=8)
+        axes[0].legend(handles, names, loc="best", fontsize=8)
     fig.suptitle(title)
     return save_figure(fig, path)
 
@@ -71,7 +94,6 @@ def speed_accuracy_plot(sa: pd.DataFrame, chosen: pd.Series | None, title: str, 
     _speed_accuracy_row(axes, sa, chosen)
     axes[0].set_title("PSNR vs training time")
     axes[1].set_title("PSNR vs number of Gaussians")
-    axes[1].legend(loc="lower right", fontsize=8)
     fig.suptitle(title)
     return save_figure(fig, path)
 
@@ -87,67 +109,79 @@ def speed_accuracy_scenes_plot(sa: pd.DataFrame, chosen: pd.DataFrame, title: st
         pick = chosen[chosen.scene == scene]
         _speed_accuracy_row(row, cells, pick.iloc[0] if len(pick) else None)
         label = cells.scene_label.iloc[0]
-        row[0].set_title(f"{label}: PSNR vs training time")
-        row[1].set_title(f"{label}: PSNR vs number of Gaussians")
-        row[1].legend(loc="best", fontsize=8)
+        row[0].set_title(label, loc="left", fontsize=10)  # the x axes say which cost each panel shows
     fig.suptitle(title)
     return save_figure(fig, path)
 
 
 def _speed_accuracy_row(axes: np.ndarray, sa: pd.DataFrame, chosen: pd.Series | None) -> None:
     """Draw ``sa`` on two axes: PSNR vs train time, PSNR vs #Gaussians (log x); mean +- std per
-    variant coloured by iterations, Pareto front dashed, ``chosen`` starred."""
+    variant, coloured by budget and shaped by iteration count (a legend, no labels on the points,
+    so none can overlap), Pareto front dashed, ``chosen`` starred."""
     ok = sa[sa["mean"].notna()]
+    budgets = sorted(ok.budget.unique()) if "budget" in ok else []
+    its = sorted(ok.iterations.unique())
+    markers = "os^Dv"
     for ax, xcol, front, xlabel in (
         (axes[0], "train_seconds", "pareto_time", "training time (s)"),
         (axes[1], "n_gaussians", "pareto_gaussians", "number of Gaussians"),
     ):
-        its = sorted(ok.iterations.unique())
-        for k, it in enumerate(its):
-            sub = ok[ok.iterations == it]
-            ax.errorbar(sub[xcol], sub["mean"], yerr=sub["std"].fillna(0), fmt="o", capsize=3,
-                        label=f"{int(it)} iterations", color=f"C{k}")
         for r in ok.itertuples():
-            ax.annotate(r.variant, (getattr(r, xcol), r.mean), textcoords="offset points", xytext=(4, 4), fontsize=7)
+            colour = f"C{budgets.index(r.budget) % 10}" if budgets else "C0"
+            ax.errorbar([getattr(r, xcol)], [r.mean], yerr=[0 if r.std != r.std else r.std], capsize=3,
+                        marker=markers[its.index(r.iterations) % len(markers)], color=colour, ls="none")
         pf = ok[ok[front]].sort_values(xcol)
         if len(pf):
-            ax.step(pf[xcol], pf["mean"], where="post", color="black", lw=1.2, ls="--", label="Pareto front")
+            ax.step(pf[xcol], pf["mean"], where="post", color="black", lw=1.2, ls="--")
         if chosen is not None:
-            ax.scatter([chosen[xcol]], [chosen["mean"]], marker="*", s=260, color="gold", edgecolor="black", zorder=5,
-                       label=f"smallest budget within 0.1 dB: {chosen['variant']}")
+            ax.scatter([chosen[xcol]], [chosen["mean"]], marker="*", s=260, color="gold", edgecolor="black", zorder=5)
         if xcol == "n_gaussians" and len(ok) and ok[xcol].min() > 0:
             ax.set_xscale("log")
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(pretty("psnr"))
+    line = plt.Line2D
+    handles = [line([], [], color=f"C{k % 10}", marker="o", ls="none", label=f"budget {b:,.0f}")
+               for k, b in enumerate(budgets)]
+    handles += [line([], [], color="grey", marker=markers[k % len(markers)], ls="none", label=f"{int(it):,} iterations")
+                for k, it in enumerate(its)]
+    handles += [line([], [], color="black", ls="--", label="Pareto front")]
+    if chosen is not None:
+        handles += [line([], [], marker="*", ms=14, color="gold", mec="black", ls="none",
+                         label=f"smallest budget within 0.1 dB: {chosen['variant']}")]
+    axes[1].legend(handles=handles, fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
 
 
 def stability_plot(st: pd.DataFrame, variants: list[str], scenes: list[str], labels: dict[str, str],
                    title: str, path: Path) -> Path:
-    """Three panels over difficulty cells: mean +- std PSNR, spread, failure rate."""
-    fig, axes = plt.subplots(1, 3, figsize=(max(12.0, 3.5 * len(scenes)), 4.6), constrained_layout=True)
+    """Three panels, one above the other, over difficulty cells: mean +- std PSNR, spread,
+    failure rate (each non-zero rate labelled, turned upright so neighbours cannot collide)."""
+    width = min(MAX_WIDTH_IN, max(8.0, 1.0 * len(scenes) + 2.5))
+    fig, axes = plt.subplots(3, 1, figsize=(width, 11.0), sharex=True, constrained_layout=True)
     x = np.arange(len(scenes))
-    width = 0.8 / max(1, len(variants))
+    bar = 0.8 / max(1, len(variants))
     for k, v in enumerate(variants):
         sub = st[st.variant == v].set_index("scene").reindex(scenes)
-        offs = x - 0.4 + width * (k + 0.5)
+        offs = x - 0.4 + bar * (k + 0.5)
         axes[0].errorbar(offs, sub["mean"], yerr=sub["std"].fillna(0), fmt="o", capsize=4, label=v, color=f"C{k}")
-        axes[1].bar(offs, sub["spread"].fillna(0), width, label=v, color=f"C{k}")
-        bars = axes[2].bar(offs, sub["failure_rate"].fillna(0) * 100, width, label=v, color=f"C{k}")
-        axes[2].bar_label(bars, labels=[f"{r:.0%}" if r == r else "n/a" for r in sub["failure_rate"]], fontsize=7)
+        axes[1].bar(offs, sub["spread"].fillna(0), bar, label=v, color=f"C{k}")
+        rate = sub["failure_rate"]
+        bars = axes[2].bar(offs, rate.fillna(0) * 100, bar, label=v, color=f"C{k}")
+        axes[2].bar_label(bars, labels=[f"{r:.0%}" if r == r and r > 0 else "" for r in rate], fontsize=7,
+                          rotation=90, padding=2)
     names = [labels.get(s, s) for s in scenes]
     for ax, ylabel, sub_title in (
         (axes[0], pretty("psnr") + " (mean ± std)", "quality"),
         (axes[1], "spread: max − min PSNR (dB)", "run-to-run spread"),
-        (axes[2], "failed or diverged runs (%)", "failure rate"),
+        (axes[2], "failed or diverged runs (%)", "failure rate: crashed or diverged runs, labelled where above 0 % (collapses: ladders.png)"),
     ):
-        ax.set_xticks(x, names, rotation=20, ha="right")
         ax.set_xlim(-0.6, len(scenes) - 0.4)
-        ax.set_xlabel("difficulty cell")
         ax.set_ylabel(ylabel)
-        ax.set_title(sub_title)
+        ax.set_title(sub_title, fontsize=10)
         ax.grid(axis="y", alpha=0.3)
-    axes[2].set_ylim(0, 105)
-    axes[0].legend(title="method", fontsize=8)
+    axes[2].set_xticks(x, names, rotation=90)  # upright names: a box per name, none can overlap
+    axes[2].set_xlabel("difficulty cell")
+    axes[2].set_ylim(0, 125)
+    axes[0].legend(title="method", fontsize=8, ncols=min(len(variants), 5), loc="lower left")
     fig.suptitle(title)
     return save_figure(fig, path)
