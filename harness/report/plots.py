@@ -74,8 +74,10 @@ def strip_plot(df: pd.DataFrame, metric: str, variants: list[str], scenes: list[
                             zorder=4, label="mean ± std" if i == 0 else None)
             n_bad = int((sub.status != "FINISHED").sum())
             ticks.append(v + (f"\n({n_bad} failed)" if n_bad else ""))
-        ax.set_xticks(range(len(shown)), ticks, rotation=30 if len(shown) > 2 else 0,
-                      ha="right" if len(shown) > 2 else "center", fontsize=8)
+        # a few names slanted; many upright, where slanted boxes would overlap their neighbours
+        rotation = 0 if len(shown) <= 2 else 30 if len(shown) <= 6 else 90
+        ax.set_xticks(range(len(shown)), ticks, rotation=rotation, ha="right" if rotation == 30 else "center",
+                      fontsize=8)
         ax.set_title(labels.get(scene, scene), fontsize=10)
         ax.grid(axis="y", alpha=0.3)
         ax.set_xlim(-0.6, len(shown) - 0.4)
