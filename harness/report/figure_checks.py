@@ -16,7 +16,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.text import Text  # noqa: E402
 
-DPI = 120  # plots.save_figure's resolution
+from harness.report.plots import DPI  # noqa: E402  (plots.save_figure's resolution)
+
 MAX_WIDTH_PX = 2000  # wider does not fit a laptop screen or a Markdown page at 1:1
 
 

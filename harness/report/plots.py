@@ -21,11 +21,13 @@ import pandas as pd  # noqa: E402
 
 from harness.report.tables import pretty  # noqa: E402
 
+DPI = 120  # every report figure's resolution (harness/report/figure_checks.py measures widths at it)
+
 
 def save_figure(fig: plt.Figure, path: Path) -> Path:
     """Write ``fig`` to ``path`` (parents created, 120 dpi, tight) and close it."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    fig.savefig(path, dpi=DPI, bbox_inches="tight")
     plt.close(fig)
     return path
 
