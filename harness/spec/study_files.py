@@ -200,12 +200,29 @@ def _rung_settings(s: StudyScene, ladders: dict[str, Ladder], where: str) -> tup
             key = lad.override
             require(not any(o.split("=", 1)[0].lstrip("+~") == key for o in s.overrides), f"{where}.overrides",
                     f"'{key}' is set by the rung {ladder}: {value:g} (profile ladders), not here")
-            overrides.append(f"{key}={value * lad.times!r}")
+            overrides.append(f"{key}={_override_value(key, value * lad.times, f'{where}.rungs.{ladder}')}")
         else:
             require(lad.synth not in (s.synth or {}), f"{where}.synth",
                     f"'{lad.synth}' is set by the rung {ladder}: {value:g} (profile ladders), not here")
             synth[lad.synth] = _synth_value(lad.synth, value * lad.times, f"{where}.rungs.{ladder}")
     return tuple(overrides), synth
+
+
+def _override_value(key: str, value: float, where: str) -> str:
+    """``value`` written for the ``TrainConfig`` field ``key`` (dotted): a whole number for an int
+    field (``init.keyframe_stride=5``), else the float's repr (``lr.scale=24.0``)."""
+    import typing
+
+    from ftgspp.config import TrainConfig
+
+    kind: Any = TrainConfig
+    for part in key.split("."):
+        hints = typing.get_type_hints(kind) if dataclasses.is_dataclass(kind) else {}
+        kind = hints.get(part)
+    if kind is not None and int in typing.get_args(kind) + (kind,) and float not in typing.get_args(kind) + (kind,):
+        require(float(value).is_integer(), where, f"{key} needs a whole number, not {value:g}")
+        return str(int(value))
+    return repr(value)
 
 
 def _synth_value(field: str, value: float, where: str) -> int | float:

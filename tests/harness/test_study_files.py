@@ -226,3 +226,15 @@ def test_quick_learning_rate_ladders_are_multiples_of_the_tuned_rate() -> None:
                 assert ladder.times == tuned, f"{name}: lr ladder times {ladder.times}, quick lr.scale {tuned}"
                 seen += 1
     assert seen >= 2  # stability and collapse
+
+
+def test_a_rung_on_an_int_setting_is_written_as_a_whole_number():
+    """A keyframe-stride rung is the override ``init.keyframe_stride=5`` (the config's int), a
+    learning-rate rung stays a float, and a fractional value for an int setting is refused."""
+    from harness.spec.study_files import _override_value
+
+    assert _override_value("init.keyframe_stride", 5.0, "w") == "5"
+    assert _override_value("init.candidates_per_frame", 1000.0, "w") == "1000"  # int | None
+    assert _override_value("lr.scale", 24.0, "w") == "24.0"
+    with pytest.raises(InputError, match="whole number"):
+        _override_value("init.keyframe_stride", 2.5, "w")
