@@ -52,6 +52,8 @@ reports: install weights
 	$(PY) -m harness.cli.reports_plan --jobs $(or $(JOBS),2) --todo .reports-todo
 	@set -e; for s in $$(cat .reports-todo); do case " $(STUDIES) " in *" $$s "*) \
 	  $(VENV)/bin/study run $$s --profile quick --rerun-stale $(if $(JOBS),--jobs $(JOBS));; esac; done
+	@# render speed and size of the speed-accuracy grid's models, one at a time, nothing else running
+	case " $(STUDIES) " in *" speed_accuracy "*) $(VENV)/bin/study measure speed_accuracy --profile quick;; esac
 	$(VENV)/bin/study report --all --profile quick --if-changed --out reports
 	$(VENV)/bin/study index --out reports
 	@echo "open reports/index.md"

@@ -199,7 +199,9 @@ def stability(df: pd.DataFrame, metric: str = "psnr") -> pd.DataFrame:
             "failure_rate": float((attempted.status != "FINISHED").mean()) if len(attempted) else math.nan,
             "n_diverged": int((sub.failure == "diverged").sum()),
         })
-    return pd.DataFrame(rows)
+    out = pd.DataFrame(rows)
+    out.attrs["metric"] = metric
+    return out
 
 
 KERNEL_SETS = {"DEFAULT": "x86-64 baseline (no AVX)", "AVX2": "AVX2", "AVX512": "AVX-512"}

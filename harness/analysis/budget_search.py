@@ -69,6 +69,7 @@ class BudgetSearch:
     metric: str = "psnr"  # what the search judges: psnr or psnr_cc (METRICS)
     scores: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed value of ``metric``
     seconds: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed train seconds
+    faded: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed Gaussians drawn nowhere
     steps: list[str] = field(default_factory=list)  # one line per decision
     chosen: int | None = None
     saturated: bool = False  # False: doubling still gained at the largest budget allowed

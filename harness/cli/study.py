@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import atexit
 import gc
+import json
 import os
 import sys
 from pathlib import Path
@@ -91,6 +92,10 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--all", action="store_true", help="every study, in one process (no NAME)")
     report.add_argument("--if-changed", action="store_true",
                         help="skip a report whose runs and code are those it was made from (reports/NAME/.fingerprint)")
+    measure = sub.add_parser("measure", help="render FPS (1 thread, all cores) and size of each finished run's"
+                                             " trained model, logged to its run; run it with nothing else running")
+    _selection_args(measure)
+    measure.add_argument("--force", action="store_true", help="measure runs that already have the figures again")
     check = sub.add_parser("check", help="compare the study's runs with a committed report's runs.csv, bit for bit:"
                                          " training identical, evaluation differs, expected to differ (another"
                                          " determinism domain or config) or differs unexpectedly")
@@ -204,7 +209,11 @@ def cmd_budget(args: argparse.Namespace) -> int:
     jobs = args.jobs or max(1, min(2, os.cpu_count() or 1))
     found = search(scene, start=args.start, max_budget=args.max, threshold=args.threshold, seeds=args.seeds,
                    overrides=list(args.overrides), jobs=jobs, metric=args.metric)
-    path = write(found, args.out / found.scene)
+    true_size = None
+    if args.preset:  # a known-size scene says how many Gaussians drew it
+        marker = Path(scene.synth_dir) / "known_size.json"
+        true_size = json.loads(marker.read_text())["k"] if marker.is_file() else None
+    path = write(found, args.out / found.scene, true_size)
     print(path.read_text().split("\n**")[-1].strip() if found.saturated else "no saturation: see " + str(path))
     print(f"report: {path}")
     return 0
@@ -287,6 +296,11 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_budget(args)
         if args.command == "check":
             return cmd_check(args)
+        if args.command == "measure":
+            from harness.cli.measure import measure_study
+
+            measure_study(args.name, _selection(args, required=False), force=args.force)
+            return 0
         if args.command == "index":
             from harness.report.index import write_claims_index
 

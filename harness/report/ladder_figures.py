@@ -17,22 +17,23 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from harness.analysis.ladder_breaks import (  # noqa: E402
-    COLLAPSE_DB,
-    COLLAPSE_RULE,
-    COLLAPSED,
+    BREAKS,
     COMPONENT,
+    FAILURE_RULE,
+    KIND_NAMES,
+    KINDS,
     METHOD,
-    METRIC,
+    QUALITY,
     Ladder,
-    classify_all,
+    changing_rungs,
     first_breaks,
     ladder_table,
     ladders_of,
 )
-from harness.report.plots import save_figure  # noqa: E402
+from harness.report.plots import MAX_WIDTH_IN, save_figure  # noqa: E402
 from harness.spec.study_schema import StudyScene  # noqa: E402
 
-LOG_X_LADDERS = ("lr_scale",)  # ladders whose rungs are multiplicative: plotted on a log axis
+LOG_X_LADDERS = ("lr_scale", "stride", "init_points")  # multiplicative rungs: plotted on a log axis
 
 
 # --- Markdown ------------------------------------------------------------------------
@@ -42,29 +43,41 @@ def _num(x: float) -> str:
     return "—" if math.isnan(x) else f"{x:.2f}"
 
 
-def cell_text(r: pd.Series) -> str:
-    """``30.12 ± 0.20 (fail 1/2: 0/1/0)``: finished runs' PSNR, failed of attempted:
-    crashed/diverged/collapsed."""
-    fails = r.n_crashed + r.n_diverged + r.n_collapsed
-    return (f"{_num(r.psnr_mean)} ± {_num(r.psnr_std)} (fail {fails}/{r.n_attempted}:"
-            f" {r.n_crashed}/{r.n_diverged}/{r.n_collapsed})")
+def rate_text(k: int, n: int, low: float, high: float) -> str:
+    """``1/3 (1–91 %)``: k of n attempted with the exact 95 % interval of the rate (``≤ 71 %`` for
+    none, ``≥ 29 %`` for all)."""
+    if not n:
+        return "—"
+    if k == 0:
+        return f"0/{n} (≤ {100 * high:.0f} %)"
+    if k == n:
+        return f"{k}/{n} (≥ {100 * low:.0f} %)"
+    return f"{k}/{n} ({100 * low:.0f}–{100 * high:.0f} %)"
+
+
+HEADER = ("| runs | colour-aligned PSNR | raw PSNR | " + " | ".join(KIND_NAMES[k] for k in KINDS) + " |")
+
+
+def row_cells(r: pd.Series) -> str:
+    """The columns of ``HEADER`` for one (rung, variant) row."""
+    kinds = " | ".join(rate_text(int(r[f"n_{k}"]), int(r.n_attempted), r[f"rate_{k}_low"], r[f"rate_{k}_high"])
+                       for k in KINDS)
+    return (f"| {r.n_attempted} | {_num(r.psnr_cc_mean)} ± {_num(r.psnr_cc_std)} |"
+            f" {_num(r.psnr_mean)} ± {_num(r.psnr_std)} | {kinds} |")
 
 
 def ladder_markdown(table: pd.DataFrame, breaks: pd.DataFrame, ladder: str) -> list[str]:
-    """One ladder's table (rows: rungs; columns: methods) and its first-break line."""
+    """One ladder's table (a row per rung and method) and its first-break lines."""
     sub = table[(table.ladder == ladder) & (table.role == METHOD)]
-    methods = list(dict.fromkeys(sub.variant))
-    lines = [f"### Ladder `{ladder}`", "", f"| {ladder} | cell | " + " | ".join(methods) + " |",
-             "|---:|---|" + "---|" * len(methods)]
-    for step, rung in sub.groupby("step", sort=True):
-        cells = rung.set_index("variant")
-        first = rung.iloc[0]
-        tag = " (base)" if step == 0 else ""
-        lines.append(f"| {first.rung:g}{tag} | {first.scene_label} | "
-                     + " | ".join(cell_text(cells.loc[v]) if v in cells.index else "not run" for v in methods)
-                     + " |")
+    lines = [f"### Ladder `{ladder}`", "", f"| {ladder} | cell | method " + HEADER,
+             "|---:|---|---|---:|---:|---:|" + "---:|" * len(KINDS)]
+    for r in sub.sort_values("step", kind="stable").itertuples():
+        tag = " (base)" if r.step == 0 else ""
+        lines.append(f"| {r.rung:g}{tag} | {r.scene_label} | `{r.variant}` " + row_cells(pd.Series(r._asdict())))
     b = breaks[(breaks.ladder == ladder) & (breaks.role == METHOD)]
-    lines += ["", "First rung with a failure: " + "; ".join(f"`{r.variant}` {r.text}" for r in b.itertuples())
+    lines += ["", "First rung that breaks a method (a crash, a divergence or a colour collapse): "
+              + "; ".join(f"`{r.variant}` {r.text}" for r in b.itertuples()) + ".",
+              "First rung with a quality loss: " + "; ".join(f"`{r.variant}` {r.loss_text}" for r in b.itertuples())
               + ".", ""]
     return lines
 
@@ -78,35 +91,46 @@ def components_markdown(table: pd.DataFrame) -> list[str]:
         if not (sub.role == COMPONENT).any():
             continue
         sub = sub.sort_values("role", key=lambda s: s != METHOD, kind="stable")
-        lines += [f"#### Variants on {sub.scene_label.iloc[0]}", "",
-                  "| variant | role | finished PSNR (mean ± std) | ok / attempted | crashed | diverged | collapsed |",
-                  "|---|---|---|---:|---:|---:|---:|"]
+        lines += [f"#### Variants on {sub.scene_label.iloc[0]}", "", "| variant | role " + HEADER,
+                  "|---|---|---:|---:|---:|" + "---:|" * len(KINDS)]
         for r in sub.itertuples():
-            no_ref = math.isnan(r.reference_psnr) and r.step > 0
-            unjudged |= no_ref
-            collapsed = "—" if no_ref else str(r.n_collapsed)
-            lines.append(f"| `{r.variant}` | {r.role} | {_num(r.psnr_mean)} ± {_num(r.psnr_std)} |"
-                         f" {r.n_ok} / {r.n_attempted} | {r.n_crashed} | {r.n_diverged} | {collapsed} |")
+            unjudged |= math.isnan(r.reference_psnr) and r.step > 0
+            lines.append(f"| `{r.variant}` | {r.role} " + row_cells(pd.Series(r._asdict())))
         lines.append("")
     if unjudged:
-        lines += ["Collapsed \"—\": the variant has no finished base-cell runs, and extends no variant that has, to judge a collapse against.", ""]
+        lines += ["A variant with no finished base-cell runs, which extends no variant that has, is not judged"
+                  " for quality loss (its count is 0 by default).", ""]
     return (["### Component variants per cell", "", *lines] if lines else [])
 
 
+def seeds_markdown(table: pd.DataFrame) -> list[str]:
+    """Where the failure rates change along a ladder, and how many runs each of those cells has."""
+    change = changing_rungs(table)
+    if change.empty:
+        return ["No method's rate of any failure kind changes along a ladder.", ""]
+    cells = change.drop_duplicates(["scene", "variant"])
+    few = cells[cells.n_attempted < 5]
+    text = ", ".join(f"{r.scene}/`{r.variant}` ({r.n_attempted})" for r in cells.itertuples())
+    lines = [f"Cells where a method's failure rate changes from one rung to the next (attempted runs): {text}."]
+    lines.append("Each has at least 5 runs." if few.empty else
+                 f"{len(few)} of them have fewer than 5 runs: read their rates with the interval.")
+    return lines + [""]
+
+
 def ladders_markdown(table: pd.DataFrame, breaks: pd.DataFrame, figure: str = "") -> str:
-    """The report's section: the rule, a table and a first-break line per ladder, the
-    component variants per cell and (when given) the figure."""
+    """The report's section: the rule, a table and first-break lines per ladder, the component
+    variants per cell, where the rates change and (when given) the figure."""
     lines = ["Each ladder starts at its base cell and makes one condition harder, rung by rung; rows are"
-             " in that order. " + COLLAPSE_RULE + " Interrupted, running and missing runs are not attempted."
-             " Each cell: mean ± std PSNR of the finished runs (collapsed ones included), then"
-             " \"fail k/n: c/d/x\": k of n attempted runs failed, c crashed, d diverged, x collapsed.", ""]
+             " in that order. " + FAILURE_RULE + " Interrupted, running and missing runs are not attempted."
+             " PSNR columns: mean ± std of the finished runs.", ""]
     if table.empty:
         return "\n".join(lines + ["No runs on any ladder."])
     for lad in dict.fromkeys(table.ladder):
         lines += ladder_markdown(table, breaks, lad)
     lines += components_markdown(table)
+    lines += seeds_markdown(table)
     if figure:
-        lines += [f"![PSNR and failure rate along each ladder]({figure})", ""]
+        lines += [f"![Colour-aligned PSNR and failure rates along each ladder]({figure})", ""]
     return "\n".join(lines).rstrip() + "\n"
 
 
@@ -125,19 +149,13 @@ def _axis(ax: plt.Axes, ladder: Ladder) -> None:
     ax.grid(alpha=0.3)
 
 
-def _breakdown(crashed: int, diverged: int, collapsed: int) -> str:
-    """``1 crash + 1 div``: the nonzero failure counts of one rung."""
-    parts = [(crashed, "crash"), (diverged, "div"), (collapsed, "coll")]
-    return " + ".join(f"{n} {word}" for n, word in parts if n)
-
-
-def ladder_plot(table: pd.DataFrame, runs: pd.DataFrame, scenes: Sequence[StudyScene],
-                title: str, path: Path) -> Path:
-    """One column per ladder: mean ± std PSNR (collapsed runs as hollow triangles) on top,
-    failure rate with crashed/diverged/collapsed counts below; one line per method."""
+def ladder_plot(table: pd.DataFrame, scenes: Sequence[StudyScene], title: str, path: Path) -> Path:
+    """One column per ladder, one line per method: colour-aligned PSNR (mean ± std, raw PSNR
+    dashed) on top; below, the rate of breaking runs (crash, divergence or colour collapse) with
+    its exact 95 % interval, and the quality-loss rate dotted."""
     lads = ladders_of(scenes)
-    fig, axes = plt.subplots(2, len(lads), figsize=(min(4.2, 15.0 / len(lads)) * len(lads), 7.0), squeeze=False,
-                             sharey="row",
+    width = min(4.2, MAX_WIDTH_IN / len(lads)) * len(lads)
+    fig, axes = plt.subplots(2, len(lads), figsize=(width, 7.0), squeeze=False, sharey="row",
                              constrained_layout=True)
     methods = list(dict.fromkeys(table.loc[table.role == METHOD, "variant"]))
     for col, lad in enumerate(lads):
@@ -145,33 +163,34 @@ def ladder_plot(table: pd.DataFrame, runs: pd.DataFrame, scenes: Sequence[StudyS
         for k, v in enumerate(methods):
             sub = table[(table.ladder == lad.name) & (table.variant == v) & (table.role == METHOD)]
             style = {"color": f"C{k}", "marker": "osD^"[k % 4]}
-            top.errorbar(sub.rung, sub.psnr_mean, yerr=sub.psnr_std.fillna(0), capsize=3, label=v, **style)
-            bad = runs[(runs.ladder == lad.name) & (runs.variant == v) & (runs.outcome == COLLAPSED)]
-            top.scatter(bad.rung, bad[METRIC], marker="v", s=60, facecolors="none", edgecolors=f"C{k}",
-                        label=f"{v}: collapsed run" if len(bad) else None, zorder=4)
-            bottom.plot(sub.rung, 100 * sub.failure_rate, **style, label=v)
-            for r in sub[sub.failure_rate > 0].itertuples():
-                bottom.annotate(_breakdown(r.n_crashed, r.n_diverged, r.n_collapsed), (r.rung, 100 * r.failure_rate),
-                                textcoords="offset points", xytext=(4, 4 + 9 * k), fontsize=7, color=f"C{k}")
+            top.errorbar(sub.rung, sub.psnr_cc_mean, yerr=sub.psnr_cc_std.fillna(0), capsize=3,
+                         label=f"{v}: colour-aligned", **style)
+            top.plot(sub.rung, sub.psnr_mean, ls="--", alpha=0.6, label=f"{v}: raw", **style)
+            err = [100 * (sub.break_rate - sub.break_rate_low), 100 * (sub.break_rate_high - sub.break_rate)]
+            bottom.errorbar(sub.rung, 100 * sub.break_rate, yerr=err, capsize=3, label=f"{v}: breaks", **style)
+            bottom.plot(sub.rung, 100 * sub[f"rate_{QUALITY}"], ls=":", label=f"{v}: quality loss", **style)
         for ax in (top, bottom):
             _axis(ax, lad)
-        top.set_title(f"ladder {lad.name} (base: {lad.base.scene.title})")
+        top.set_title(f"{lad.name}\n(base: {lad.base.scene.title})", fontsize=9)
         bottom.set_xlabel(f"{lad.name} (harder →)")
-        bottom.set_ylim(-5, 110)
-    axes[0][0].set_ylabel("PSNR (dB), finished runs: mean ± std")
-    axes[1][0].set_ylabel("failed runs (% of attempted)")
-    if axes[0][0].get_legend_handles_labels()[0]:  # a ladder with no finished cell has nothing to label
-        axes[0][0].legend(fontsize=7, loc="best")
-    fig.suptitle(f"{title}\nfailed runs: crash(ed), div(erged), coll(apsed) = finished"
-                 f" > {COLLAPSE_DB:g} dB below the method's base-cell mean")
+        bottom.set_ylim(-5, 105)
+    axes[0][0].set_ylabel("PSNR (dB), finished runs")
+    axes[1][0].set_ylabel("runs (% of attempted)")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    h2, l2 = axes[1][0].get_legend_handles_labels()
+    if handles or h2:
+        fig.legend(handles + h2, labels + l2, fontsize=7, loc="outside lower center", ncols=4)
+    fig.suptitle(f"{title}\nbreaks: {', '.join(KIND_NAMES[k] for k in BREAKS)} (95 % interval);"
+                 " quality loss dotted")
     return save_figure(fig, path)
 
 
-def write(df: pd.DataFrame, scenes: Sequence[StudyScene], out: Path, title: str) -> str:
-    """``ladders.csv`` and ``ladders.png`` under ``out``; returns the Markdown section."""
-    table = ladder_table(df, scenes)
+def write(df: pd.DataFrame, scenes: Sequence[StudyScene], out: Path, title: str, baseline: str = "baseline") -> str:
+    """``ladders.csv`` and ``ladders.png`` under ``out``; returns the Markdown section.
+    ``baseline``: the variant whose held-out colour gap is each cell's reference."""
+    table = ladder_table(df, scenes, baseline)
     table.to_csv(out / "ladders.csv", index=False)
     if table.empty:
         return ladders_markdown(table, pd.DataFrame())
-    ladder_plot(table, classify_all(df, scenes), scenes, title, out / "ladders.png")
+    ladder_plot(table, scenes, title, out / "ladders.png")
     return ladders_markdown(table, first_breaks(table), "ladders.png")

@@ -175,9 +175,10 @@ def stability_plot(st: pd.DataFrame, variants: list[str], scenes: list[str], lab
                           rotation=90, padding=2)
     names = [labels.get(s, s) for s in scenes]
     for ax, ylabel, sub_title in (
-        (axes[0], pretty("psnr") + " (mean ± std)", "quality"),
+        (axes[0], pretty(st.attrs.get("metric", "psnr")) + " (mean ± std)", "quality"),
         (axes[1], "spread: max − min PSNR (dB)", "run-to-run spread"),
-        (axes[2], "failed or diverged runs (%)", "failure rate: crashed or diverged runs, labelled where above 0 % (collapses: ladders.png)"),
+        (axes[2], "failed runs (%)", "failure rate, labelled where above 0 %: runs that crashed or diverged"
+         + (", or collapsed their colours (ladders.png)" if "quality_rate" in st else "")),
     ):
         ax.set_xlim(-0.6, len(scenes) - 0.4)
         ax.set_ylabel(ylabel)

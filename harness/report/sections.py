@@ -22,7 +22,7 @@ from pathlib import Path
 import pandas as pd
 
 from harness.analysis import aggregate, ladder_breaks, speed_accuracy_scenes, variance, verdicts
-from harness.report import claims_table, committed, families, ladder_figures, plots, tables
+from harness.report import claims_table, committed, families, ladder_figures, pareto_plots, plots, tables
 from harness.report.fmt import fixed
 from harness.report.results import ReportData
 from harness.spec import metrics as registry
@@ -204,7 +204,8 @@ def ladders_section(data: ReportData, out: Path) -> Section | None:
     scenes = data.study.profile(data.sel.profile).scenes
     if not ladder_breaks.has_ladders(scenes):
         return None
-    md = ladder_figures.write(data.df, scenes, out, f"{data.study.name}: where does each method break?")
+    md = ladder_figures.write(data.df, scenes, out, f"{data.study.name}: where does each method break?",
+                              data.baseline)
     return Section("Stability ladders", md)
 
 
@@ -224,9 +225,15 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
         chosen_per_scene = speed_accuracy_scenes.smallest_per_scene(sa, data.df)
         sa.to_csv(out / "speed_accuracy.csv", index=False)
         chosen_per_scene.to_csv(out / "speed_accuracy_smallest.csv", index=False)
-        p = plots.speed_accuracy_scenes_plot(sa, chosen_per_scene, f"{name}: what does quality cost, per scene?",
-                                             out / "speed_accuracy.png")
-        made.append(("PSNR against training time and number of Gaussians per scene, Pareto fronts dashed", p))
+        for metric, file in (("psnr", "speed_accuracy.png"), ("psnr_cc", "speed_accuracy_psnr_cc.png"),
+                             ("lpips_alex", "speed_accuracy_lpips_alex.png")):
+            if metric not in data.df or not data.df[metric].notna().any():
+                continue
+            cells = sa if metric == "psnr" else speed_accuracy_scenes.per_scene(data.df, metric)
+            p = pareto_plots.pareto_plot(cells, metric, f"{name}: {tables.pretty(metric)} against cost, per scene",
+                                         out / file)
+            made.append((f"{tables.pretty(metric)} against training time, render speed and model size per scene,"
+                         " each method's Pareto front dashed", p))
     elif "speed_accuracy" in data.study.plots:
         sa = aggregate.speed_accuracy(data.df)
         chosen = aggregate.smallest_within(sa)
@@ -234,7 +241,13 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
         p = plots.speed_accuracy_plot(sa, chosen, f"{name}: what does quality cost?", out / "speed_accuracy.png")
         made.append(("PSNR against training time and number of Gaussians, Pareto front dashed", p))
     if "stability" in data.study.plots:
-        st = aggregate.stability(data.df)
+        metric = "psnr_cc" if "psnr_cc" in data.df else "psnr"
+        st = aggregate.stability(data.df, metric)
+        if ladder_breaks.has_ladders(data.study.profile(data.sel.profile).scenes):  # the ladders' failure kinds
+            rates = ladder_breaks.cell_break_rates(data.df, data.study.profile(data.sel.profile).scenes, data.baseline)
+            st = st.drop(columns="failure_rate").merge(rates.rename(columns={"break_rate": "failure_rate"}),
+                                                       on=["variant", "scene"], how="left")
+            st.attrs["metric"] = metric
         st.to_csv(out / "stability.csv", index=False)
         p = plots.stability_plot(st, variants, scenes, labels, f"{name}: where do methods become unstable?",
                                  out / "stability.png")

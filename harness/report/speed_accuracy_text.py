@@ -1,5 +1,6 @@
-"""Speed against accuracy per scene in a report: the smallest-budget table and one sentence
-per pair of scenes (numbers from ``analysis.speed_accuracy_scenes``)."""
+"""Speed against accuracy per scene in a report: the smallest-budget table, one sentence per
+pair of scenes (per method), and what the second method costs and buys against the first
+(numbers from ``analysis.speed_accuracy_scenes``)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from itertools import combinations
 
 import pandas as pd
 
-from harness.analysis.speed_accuracy_scenes import per_scene, smallest_per_scene
+from harness.analysis.speed_accuracy_scenes import method_comparison, per_scene, smallest_per_scene
 from harness.spec.metrics import label
 
 
@@ -48,7 +49,11 @@ def _unsettled(row: pd.Series) -> bool:
 
 
 def pair_sentences(chosen: pd.DataFrame) -> list[str]:
-    """One sentence per pair of scenes comparing their chosen budgets (and iterations)."""
+    """One sentence per pair of scenes comparing their chosen budgets (and iterations), per
+    method (each sentence starts with the method's name when the grid names methods)."""
+    if "method" in chosen and chosen.method.nunique() > 1:
+        return [f"`{m}`: {text}" for m, sub in chosen.groupby("method", sort=False)
+                for text in pair_sentences(sub.drop(columns="method"))]
     out = []
     for (_, a), (_, b) in combinations(chosen.iterrows(), 2):
         small, large = sorted((a, b), key=lambda r: r.budget)
@@ -83,11 +88,13 @@ def pair_sentences(chosen: pd.DataFrame) -> list[str]:
 def markdown(chosen: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr") -> str:
     """Per-scene table of ``smallest_per_scene`` followed by one sentence per scene pair."""
     name = label(metric)
-    lines = [f"| Scene | Smallest budget | Iterations | {name} (mean ± 95% CI) | Best variant | Best {name} |"
-             f" Gap to best (± 95% CI) | Within {tol_db:g} dB settled? |",
-             "|---|---:|---:|---:|---|---:|---:|---|"]
+    named = "method" in chosen and chosen.method.astype(bool).any()
+    lines = [f"| Scene |{' Method |' if named else ''} Smallest budget | Iterations | {name} (mean ± 95% CI) |"
+             f" Best variant | Best {name} | Gap to best (± 95% CI) | Within {tol_db:g} dB settled? |",
+             f"|---|{'---|' if named else ''}---:|---:|---:|---|---:|---:|---|"]
     for _, r in chosen.iterrows():
-        lines.append(f"| {r.scene_label} | {_count(r.budget)} (`{r.variant}`) | {_count(r.iterations)} |"
+        lines.append(f"| {r.scene_label} |{f' `{r.method}` |' if named else ''} {_count(r.budget)} (`{r.variant}`) |"
+                     f" {_count(r.iterations)} |"
                      f" {_pm(r['mean'], r.ci95)} | `{r.best_variant}` | {_pm(r.best_mean, r.best_ci95)} |"
                      f" {_gap(r)} | {_settled(r, tol_db)} |")
     sentences = pair_sentences(chosen)
@@ -102,8 +109,8 @@ def report_markdown(df: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr",
     sa = per_scene(df, metric)
     chosen = smallest_per_scene(sa, df, tol_db, metric)
     lines = [f"### Smallest budget within {tol_db:g} dB of the best, per scene{on}", "",
-             f"Per scene, the variant with the smallest Gaussian budget (then fewest iterations, then least"
-             f" time) whose mean {label(metric)} is within {tol_db:g} dB of that scene's best."
+             f"Per scene (and method), the variant with the smallest Gaussian budget (then fewest iterations,"
+             f" then least time) whose mean {label(metric)} is within {tol_db:g} dB of that scene's best."
              " Gap = best mean − chosen mean, 95% CI from a Welch t-interval over the two variants' runs;"
              f" when it reaches {tol_db:g} dB, the runs cannot tell whether the budget is enough.", "",
              markdown(chosen, tol_db, metric)]
@@ -122,3 +129,35 @@ def colour_aligned_markdown(df: pd.DataFrame, tol_db: float = 0.1) -> str:
         " that error dominates. Colour-aligned PSNR (`psnr_cc`: a least-squares affine colour map of the"
         " render onto the ground truth first) shows what the model itself still gains; a budget that is"
         " enough on raw PSNR but not here saturates the metric, not the scene."])
+
+
+def _ci(row: pd.Series, m: str, digits: int) -> str:
+    d, lo, hi = row[f"d_{m}"], row[f"d_{m}_low"], row[f"d_{m}_high"]
+    if math.isnan(d):
+        return "—"
+    return f"{d:+.{digits}f}" + ("" if math.isnan(lo) else f" [{lo:+.{digits}f}, {hi:+.{digits}f}]")
+
+
+def _ratio(x: float) -> str:
+    return "—" if math.isnan(x) else f"×{x:.2f}"
+
+
+def method_markdown(df: pd.DataFrame) -> str:
+    """What the second method costs and buys against the first, per scene and grid cell: quality
+    differences with 95% Welch intervals, cost ratios; "" unless the grid has two methods."""
+    cmp = method_comparison(df)
+    if cmp.empty:
+        return ""
+    first, second = cmp["first"].iloc[0], cmp["second"].iloc[0]
+    lines = [f"### What `{second}` costs and buys against `{first}`, per scene", "",
+             f"Same scene, budget and iterations; quality: `{second}` minus `{first}` (mean difference, 95% Welch"
+             f" interval over the runs); cost: `{second}` over `{first}` (ratio of means). Alive Gaussians leave"
+             " out those drawn nowhere in the clip. Render FPS: `study measure`, one model at a time.", "",
+             "| Scene | Budget | Iterations | Δ PSNR (dB) | Δ colour-aligned PSNR (dB) | Δ LPIPS-Alex |"
+             " training time | render FPS (1 thread) | model bytes | alive Gaussians |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for _, r in cmp.iterrows():
+        lines.append(f"| {r.scene_label} | {_count(r.budget)} | {_count(r.iterations)} | {_ci(r, 'psnr', 2)} |"
+                     f" {_ci(r, 'psnr_cc', 2)} | {_ci(r, 'lpips_alex', 4)} | {_ratio(r.r_train_seconds)} |"
+                     f" {_ratio(r.r_render_fps_1thread)} | {_ratio(r.r_model_bytes)} | {_ratio(r.r_n_alive)} |")
+    return "\n".join(lines)

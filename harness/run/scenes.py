@@ -1,8 +1,9 @@
 """Synthetic study scenes, generated on demand into ``data/synth/<name>``.
 
 A scene with ``synth: {preset, seed, layout, ...}`` is written by
-``ftgspp.data.synthetic.build.generate(out, layout, preset, seed, **extra)`` the first time a
-study needs it. A marker file records the arguments; a folder whose marker differs (the
+``ftgspp.data.synthetic.build.generate(out, layout, preset, seed, **extra)`` (for the preset
+``known_size``: ``run.known_size.generate``, a scene drawn from a known number of Gaussians) the
+first time a study needs it. A marker file records the arguments; a folder whose marker differs (the
 study file changed) is regenerated, one with the same marker is reused, and so is a folder
 without a marker that ``ftgspp synth`` wrote with the same arguments. Generation
 writes into a temporary sibling folder and renames it, so a killed run never leaves a
@@ -43,7 +44,12 @@ def _generated_with(out: Path, args: dict[str, Any]) -> bool:
     return meta.get("layout") == args["layout"] and meta.get("params") == want
 
 
-def _default_generator() -> Generator:
+def _default_generator(preset: str = "") -> Generator:
+    """``ftgspp synth``'s generator, or the harness's known-size scene (``run.known_size``)."""
+    from harness.run import known_size
+
+    if preset == known_size.PRESET:
+        return known_size.generate
     from ftgspp.data.synthetic.build import generate
 
     return generate
@@ -66,7 +72,7 @@ def ensure_scene(scene: StudyScene, generate: Generator | None = None, echo: Cal
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.parent.mkdir(parents=True, exist_ok=True)
     extra = {k: v for k, v in args.items() if k not in {"preset", "seed", "layout"}}
-    (generate or _default_generator())(tmp, args["layout"], args["preset"], args["seed"], **extra)
+    (generate or _default_generator(args["preset"]))(tmp, args["layout"], args["preset"], args["seed"], **extra)
     (tmp / MARKER).write_text(json.dumps(args, sort_keys=True))
     if out.exists():
         shutil.rmtree(out)

@@ -216,6 +216,11 @@ for _m in (
     Metric("peak_rss_mb", "peak RSS (MB)", 0, LOWER, RESOURCES, deterministic=False, unit="MB"),
     Metric("n_gaussians", "#Gaussians", 0, LOWER),
     Metric("n_faded", "Gaussians drawn nowhere in the clip", 0, LOWER),  # opacity there ≤ strategy.min_opacity
+    # the trained model's render speed and size (``study measure``: ftgspp/bench/model_fps.py, after training)
+    Metric("render_fps_1thread", "render FPS, 1 thread", 1, HIGHER, RESOURCES, deterministic=False),
+    Metric("render_fps_all_cores", "render FPS, all cores", 1, HIGHER, RESOURCES, deterministic=False),
+    Metric("render_cores", "cores for the all-cores FPS", 0, NEITHER, RESOURCES, claimable=False, deterministic=False),
+    Metric("model_bytes", "model size (bytes)", 0, LOWER, RESOURCES, unit="B"),
     # what the initial point set is made of (ftgspp/init/quality.py; also each run's init.json)
     Metric("init_matcher_dense", "dense matching (1) or SIFT (0)", 0, NEITHER, claimable=False),
     Metric("init_points_total", "real initial points", 0, NEITHER, claimable=False),

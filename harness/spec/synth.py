@@ -14,6 +14,14 @@ def validate_synth(scene: StudyScene) -> None:
 
     args = dict(scene.synth)
     where = f"scene '{scene.name}' synth"
+    from harness.run import known_size
+
+    if args.get("preset") == known_size.PRESET:
+        try:
+            known_size.resolve({k: v for k, v in args.items() if k != "preset"})
+        except (InputError, TypeError) as err:
+            raise InputError(where, str(err)) from None
+        return
     if args.get("layout") not in SCENE_LAYOUTS:
         raise InputError(where, f"unknown layout '{args.get('layout')}' (choose from {', '.join(SCENE_LAYOUTS)})")
     extra = {k: v for k, v in args.items() if k not in {"preset", "seed", "layout"}}

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 import harness.report.plots as plots
-from harness.report import figure_checks, forest, ladder_figures
+from harness.report import figure_checks, forest, ladder_figures, pareto_plots
 from harness.spec.study_files import load_study
 
 REPORTS = Path(__file__).resolve().parents[2] / "reports"
@@ -30,6 +30,7 @@ def drawn(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, list[str]]]:
     monkeypatch.setattr(plots, "save_figure", checked)
     monkeypatch.setattr(forest, "save_figure", checked)
     monkeypatch.setattr(ladder_figures, "save_figure", checked)
+    monkeypatch.setattr(pareto_plots, "save_figure", checked)
     return seen
 
 
@@ -80,7 +81,24 @@ def test_the_committed_reports_figures_are_readable(tmp_path: Path, drawn: list)
     df = pd.read_csv(REPORTS / "speed_accuracy" / "runs.csv")
     sa = sas.per_scene(df)
     plots.speed_accuracy_scenes_plot(sa, sas.smallest_per_scene(sa, df), "speed", tmp_path / "speed_accuracy.png")
+    pareto_plots.pareto_plot(sa, "psnr", "speed", tmp_path / "pareto.png")
     forest.forest_plot(pd.read_csv(REPORTS / "claims.csv"), tmp_path / "forest.png")
     assert len(drawn) >= 17
     bad = [(name, problems) for name, problems in drawn if problems]
     assert bad == []
+
+
+def test_a_full_two_method_pareto_grid_stays_readable(tmp_path: Path, drawn: list) -> None:
+    from harness.analysis import speed_accuracy_scenes as sas
+
+    rng = np.random.default_rng(1)
+    rows = [{"variant": f"{m}_b{b}_i{i}", "scene": s, "scene_label": f"{s} (a long scene label)", "seed": k,
+             "budget": float(b), "iterations": float(i), "status": "FINISHED", "psnr": 28 + rng.normal(),
+             "train_seconds": b * i / 1e5, "n_gaussians": float(b), "n_faded": 0.2 * b,
+             "render_fps_1thread": 1e5 / b, "model_bytes": 250.0 * b}
+            for s in ("static", "studio", "fast_motion", "plain") for m in ("ftgs", "ftgspp")
+            for b, i in ((500, 1000), (1500, 1000), (5000, 1000), (500, 3000), (1500, 3000), (5000, 3000),
+                         (10000, 3000), (20000, 3000)) for k in range(3)]
+    pareto_plots.pareto_plot(sas.per_scene(pd.DataFrame(rows)), "psnr", "speed_accuracy: PSNR against cost",
+                             tmp_path / "pareto.png")
+    assert [(name, problems) for name, problems in drawn] == [("pareto.png", [])]

@@ -246,3 +246,85 @@ def test_scenes_best_at_their_largest_budget_are_reported_as_not_saturating() ->
     assert list(chosen.largest_budget) == [5000.0, 5000.0]
     assert pair_sentences(chosen) == [
         "Neither Studio nor Fast motion saturates within the grid (each is best at its largest budget)."]
+
+
+# --- two methods on one grid --------------------------------------------------------------
+
+def _two_methods() -> pd.DataFrame:
+    """ftgs and ftgspp on two scenes and two cells; ftgspp is 0.5 dB better, 1.2x slower to
+    train, renders at 0.8x the FPS and its model is as big; seeds add known noise."""
+    rows = []
+    for scene in ("static", "studio"):
+        for method, shift, slow in (("ftgs", 0.0, 1.0), ("ftgspp", 0.5, 1.2)):
+            for budget in (500, 5000):
+                for seed in range(3):
+                    psnr = 28.0 + shift + budget / 5000 + 0.1 * seed
+                    rows.append({
+                        "variant": f"{method}_b{budget}_i1000", "scene": scene, "seed": seed,
+                        "scene_label": LABELS[scene], "budget": float(budget), "iterations": 1000.0,
+                        "status": "FINISHED", "failure": "", "error": "", "run_id": "r", "psnr": psnr,
+                        "psnr_cc": psnr + 2.0, "lpips_alex": 0.2 - 0.01 * shift - 0.001 * seed,
+                        "train_seconds": slow * budget / 100, "n_gaussians": float(budget),
+                        "n_faded": 0.1 * budget, "render_fps_1thread": 1000.0 / budget / slow,
+                        "render_fps_all_cores": 1500.0 / budget / slow, "model_bytes": 60.0 * budget})
+    return pd.DataFrame(rows)
+
+
+def test_the_method_is_the_variant_name_before_its_grid_cell() -> None:
+    from harness.analysis.speed_accuracy_scenes import method_of
+
+    assert method_of("ftgspp_b5000_i3000") == "ftgspp" and method_of("ftgs_b500k_i30k") == "ftgs"
+    assert method_of("b5000_i3000") == "" and method_of("baseline") == ""
+
+
+def test_each_method_has_its_own_smallest_budget_and_pareto_front() -> None:
+    df = _two_methods()
+    sa = per_scene(df)
+    assert set(sa.method) == {"ftgs", "ftgspp"} and len(sa) == 8
+    ftgspp = sa[(sa.scene == "static") & (sa.method == "ftgspp")].set_index("variant")
+    assert ftgspp.loc["ftgspp_b5000_i1000", "render_fps_1thread_mean"] == pytest.approx(1000 / 5000 / 1.2)
+    assert ftgspp.loc["ftgspp_b5000_i1000", "n_alive"] == pytest.approx(4500)
+    assert ftgspp.pareto_time.all()  # within one method: more time, more PSNR
+    chosen = smallest_per_scene(sa, df)
+    assert list(zip(chosen.scene, chosen.method, chosen.budget)) == [
+        ("static", "ftgs", 5000), ("static", "ftgspp", 5000), ("studio", "ftgs", 5000), ("studio", "ftgspp", 5000)]
+    assert any(s.startswith("`ftgspp`: ") for s in pair_sentences(chosen))
+
+
+def test_method_comparison_differences_and_ratios() -> None:
+    from harness.analysis.speed_accuracy_scenes import method_comparison
+
+    df = _two_methods()
+    cmp = method_comparison(df).set_index(["scene", "budget"])
+    r = cmp.loc[("studio", 500.0)]
+    assert (r["first"], r["second"]) == ("ftgs", "ftgspp")
+    assert r.d_psnr == pytest.approx(0.5) and r.d_lpips_alex == pytest.approx(-0.005)
+    a = df[(df.scene == "studio") & (df.variant == "ftgs_b500_i1000")].psnr
+    b = df[(df.scene == "studio") & (df.variant == "ftgspp_b500_i1000")].psnr
+    ci = stats.ttest_ind(b, a, equal_var=False).confidence_interval(0.95)
+    assert (r.d_psnr_low, r.d_psnr_high) == pytest.approx((ci.low, ci.high))
+    assert r.r_train_seconds == pytest.approx(1.2) and r.r_render_fps_1thread == pytest.approx(1 / 1.2)
+    assert r.r_model_bytes == pytest.approx(1.0) and r.r_n_alive == pytest.approx(1.0)
+    from harness.report.speed_accuracy_text import method_markdown
+
+    md = method_markdown(df)
+    assert "What `ftgspp` costs and buys against `ftgs`" in md and "| ×1.20 | ×0.83 | ×1.00 | ×1.00 |" in md
+    assert method_markdown(df[df.variant.str.startswith("ftgs_")]) == ""  # one method: nothing to compare
+
+
+def test_pareto_front_respects_each_axis_direction() -> None:
+    from harness.report.pareto_plots import front
+
+    cost = np.array([1.0, 2.0, 3.0, 2.5])
+    quality = np.array([30.0, 31.0, 30.5, 31.5])
+    assert list(front(cost, quality, False, False)) == [True, True, False, True]
+    assert list(front(cost, quality, True, False)) == [False, False, True, True]  # more is better (FPS)
+    assert list(front(cost, quality, False, True)) == [True, False, False, False]  # lower quality better (LPIPS)
+
+
+def test_pareto_plot_draws_both_methods_and_says_what_was_not_measured(tmp_path: Path) -> None:
+    from harness.report.pareto_plots import pareto_plot
+
+    df = _two_methods().drop(columns=["render_fps_1thread"])
+    path = pareto_plot(per_scene(df), "psnr", "toy", tmp_path / "p.png")
+    assert path.stat().st_size > 0

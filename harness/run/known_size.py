@@ -1,0 +1,151 @@
+"""A scene of known size: K Gaussians drawn by the trainer's own renderer, for the budget finder.
+
+The smallest sufficient budget is a measured answer; to know whether the finder measures it
+right, it needs a scene whose answer is known. This one is drawn from exactly ``k`` Gaussians
+that FreeTimeGS can represent one for one: constant RGB colours (a DC-only spherical
+harmonic), constant opacity over the whole clip, and either no motion or straight-line motion
+at a constant velocity (FreeTimeGS's motion model), on the black background the trainer
+composites onto (``TrainConfig.background``). Frames are rendered with ``ftgspp.render.render``
+(the ``cpu`` backend training uses), seen by the synthetic scenes' camera rig
+(``ftgspp.data.synthetic.rig``: ``cam00``, the middle camera, is held out) and written in the
+DyNeRF layout with lossless video and no sensor noise or colour shift, so no budget has to
+spend Gaussians on anything but the blobs. A budget of ``k`` can in principle redraw every
+frame exactly; the finder's answer should come out near ``k`` (``reports/budget``).
+
+A study scene names it as a synthetic preset (``synth: {preset: known_size, k: 500}``;
+``run.scenes`` dispatches it here); ``study budget --preset known_size`` searches it. The true
+parameters are kept beside the videos in ``known_size.npz`` and described in
+``known_size.json``. It lives in the harness, not in ``ftgspp.data.synthetic``: it is an
+instrument for checking the harness's budget answer, and it draws with the trainer's renderer
+as it is.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ftgspp.data.synthetic.presets import SynthConfig
+from ftgspp.errors import InputError
+
+PRESET = "known_size"
+
+
+RIG_FIELDS = ("n_cameras", "n_frames", "fps", "width", "height", "hfov_deg", "arc_deg", "rig_radius")
+
+
+@dataclass(frozen=True)
+class KnownSizeConfig:
+    """The knobs of a known-size scene; everything is a deterministic function of them. The
+    cameras and the clip are the synthetic presets' (``rig``: a ``SynthConfig`` whose
+    ``RIG_FIELDS`` a study may override)."""
+
+    k: int = 500  # Gaussians that draw the scene
+    moving_share: float = 0.25  # the share of them that moves (in straight lines)
+    speed: float = 0.5  # units/s of every moving Gaussian
+    sigma_px: float = 3.0  # typical blob size: standard deviation in pixels of a full-size view at the target
+    seed: int = 0
+    layout: str = "dynerf"
+    preset: str = PRESET
+    rig: SynthConfig = field(default_factory=SynthConfig)
+
+
+TARGET = np.array([0.0, 0.2, 1.4])  # where the rig looks (as the synthetic presets)
+EYE_HEIGHT = -0.3
+
+
+def resolve(args: dict[str, Any]) -> KnownSizeConfig:
+    """The config of study-file arguments (``InputError`` for an unknown or bad one)."""
+    own = {f.name for f in fields(KnownSizeConfig)} - {"rig"}
+    bad = sorted(set(args) - own - set(RIG_FIELDS))
+    if bad:
+        raise InputError(PRESET, f"unknown argument(s) {', '.join(bad)} (known: {', '.join(sorted(own | set(RIG_FIELDS)))})")
+    rig = replace(SynthConfig(), **{k: v for k, v in args.items() if k in RIG_FIELDS})
+    cfg = KnownSizeConfig(**{k: v for k, v in args.items() if k in own}, rig=rig)
+    if cfg.layout != "dynerf":
+        raise InputError(PRESET, f"writes the dynerf layout only, not '{cfg.layout}'")
+    if cfg.k < 1 or not 0 <= cfg.moving_share <= 1 or rig.n_cameras < 3 or rig.n_frames < 2:
+        raise InputError(PRESET, "needs k >= 1, 0 <= moving_share <= 1, n_cameras >= 3 and n_frames >= 2")
+    return cfg
+
+
+def draw_gaussians(cfg: KnownSizeConfig) -> dict[str, np.ndarray]:
+    """The scene's ``k`` Gaussians: centres at the clip's middle, velocities, scales (activated),
+    rotations (w, x, y, z), opacities and RGB colours, all numpy ``float32``."""
+    rng = np.random.default_rng(cfg.seed)
+    k = cfg.k
+    half_w = cfg.rig.rig_radius * np.tan(np.radians(cfg.rig.hfov_deg) / 2)  # half the view's width at the target
+    box = np.array([0.8 * half_w, 0.8 * half_w * cfg.rig.height / cfg.rig.width, 0.2 * cfg.rig.rig_radius])
+    duration = cfg.rig.n_frames / cfg.rig.fps
+    moving = np.zeros(k, dtype=bool)
+    moving[rng.permutation(k)[: round(cfg.moving_share * k)]] = True
+    direction = rng.normal(size=(k, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    velocity = np.where(moving[:, None], cfg.speed * direction, 0.0)
+    reach = np.abs(velocity) * duration / 2  # stay inside the box over the clip
+    means = TARGET + rng.uniform(-1, 1, size=(k, 3)) * np.maximum(box - reach, 0.05 * box)
+    focal = 0.5 * cfg.rig.width / np.tan(np.radians(cfg.rig.hfov_deg) / 2)
+    base = cfg.sigma_px * cfg.rig.rig_radius / focal  # world size of sigma_px pixels at the target's depth
+    scales = base * np.exp(rng.uniform(np.log(0.6), np.log(1.6), size=(k, 3)))
+    quats = rng.normal(size=(k, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    return {
+        "means": means, "velocities": velocity, "scales": scales, "quats": quats,
+        "opacities": rng.uniform(0.75, 0.95, size=k), "colors": rng.uniform(0.1, 0.95, size=(k, 3)),
+        "moving": moving.astype(np.float32),
+    }
+
+
+def render_frames(g: dict[str, np.ndarray], cam: Any, times: np.ndarray, t_mid: float) -> np.ndarray:
+    """uint8 RGB frames ``[F, H, W, 3]`` of the Gaussians seen by ``cam`` at ``times``."""
+    import torch
+
+    from ftgspp.render import render
+
+    t = {name: torch.as_tensor(v, dtype=torch.float32) for name, v in g.items()}
+    viewmat = torch.eye(4)
+    viewmat[:3, :3] = torch.as_tensor(cam.R, dtype=torch.float32)
+    viewmat[:3, 3] = torch.as_tensor(cam.T, dtype=torch.float32)
+    K = torch.as_tensor(cam.K, dtype=torch.float32)
+    frames = []
+    with torch.no_grad():
+        for time in times:
+            means = t["means"] + t["velocities"] * float(time - t_mid)
+            out = render(means, t["quats"], t["scales"], t["opacities"], t["colors"], viewmat, K, cam.width,
+                         cam.height, torch.zeros(3), backend="cpu")
+            frames.append((out.image.clamp(0, 1).numpy() * 255 + 0.5).astype(np.uint8))
+    return np.stack(frames)
+
+
+def generate(out: str | Path, layout: str = "dynerf", preset: str = PRESET, seed: int = 0, **args: Any) -> Path:
+    """Write the scene into ``out`` (the signature of ``ftgspp.data.synthetic.build.generate``)."""
+    from ftgspp.data.synthetic.formats import poses_bounds_row, write_video
+    from ftgspp.data.synthetic.rig import make_rig
+
+    cfg = resolve({**args, "layout": layout, "seed": seed})
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    g = draw_gaussians(cfg)
+    cams = make_rig(cfg.rig.n_cameras, cfg.rig.width, cfg.rig.height, cfg.rig.hfov_deg, cfg.rig.arc_deg, cfg.rig.rig_radius,
+                    target=TARGET, eye_height=EYE_HEIGHT)
+    times = np.arange(cfg.rig.n_frames) / cfg.rig.fps
+    t_mid = float(times[-1]) / 2
+    rows = {}
+    for cam in cams:
+        write_video(out / f"{cam.name}.mp4", render_frames(g, cam, times, t_mid), cfg.rig.fps, "ffv1")
+        depth = (g["means"] @ cam.R.T + cam.T)[:, 2]
+        rows[cam.name] = poses_bounds_row(cam, max(0.1, float(depth.min()) - 1.0), float(depth.max()) + 1.0)
+    np.save(out / "poses_bounds.npy", np.stack([rows[n] for n in sorted(rows)]).astype(np.float64))
+    np.savez(out / "known_size.npz", **g, t_mid=t_mid)
+    (out / "known_size.json").write_text(json.dumps({
+        "k": cfg.k, "moving": int(g["moving"].sum()), "params": {**{k: v for k, v in asdict(cfg).items() if k != "rig"},
+                   **{f: getattr(cfg.rig, f) for f in RIG_FIELDS}}, "test_cameras": [cams[0].name],
+        "gaussians": "known_size.npz: means at t_mid [k, 3], velocities units/s, scales (activated), quats (w, x,"
+                     " y, z), opacities, colors (RGB), moving (0/1); position at time t = means + velocities (t - t_mid)",
+        "background": [0.0, 0.0, 0.0],
+    }, indent=2))
+    return out
