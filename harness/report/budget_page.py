@@ -62,7 +62,8 @@ def write(found: BudgetSearch, out: Path, true_size: int | None = None) -> Path:
 
     out.mkdir(parents=True, exist_ok=True)
     table = frame(found)
-    table.to_csv(out / "budget.csv", index=False)
+    table.assign(chosen=table.budget == found.chosen, saturated=found.saturated,
+                 true_size=true_size or float("nan")).to_csv(out / "budget.csv", index=False)
     fig, ax = plt.subplots(figsize=(6.0, 4.0))
     ax.errorbar(table.budget, table.psnr_mean, yerr=table.psnr_std.fillna(0), marker="o", capsize=3)
     if found.chosen is not None:

@@ -29,6 +29,7 @@ import pandas as pd
 
 from harness.analysis import verdicts as V
 from harness.report import USER_REPORTS
+from harness.report.answers import answers_markdown
 from harness.report.claims_table import (
     POST_HOC,
     VERDICT_MARK,
@@ -51,9 +52,10 @@ from harness.tracking.provenance import checkout_fingerprint
 
 __all__ = ["StudyClaims", "decide_all", "index_markdown", "stale_studies", "write_claims_index"]
 
-CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per scene (PSNR vs train time and"
-                                                    " #Gaussians, Pareto fronts)"),
-          ("stability", "ladders.png", "Stability ladders: PSNR and failure rate (crash, divergence, collapse) per rung"),
+CHARTS = (("speed_accuracy", "speed_accuracy.png", "Speed against accuracy per scene (PSNR vs training time, render"
+                                                    " FPS and model size, each method's Pareto front)"),
+          ("stability", "ladders.png", "Stability ladders: PSNR and failure rates (crash, divergence, colour collapse;"
+                                       " quality loss) per rung"),
           ("stability", "stability.png", "Stability: PSNR, spread and failure rate per difficulty cell"))
 FOREST = "forest.png"
 STATEMENT_FAMILIES = ("paper", "convention")  # families whose rows are the register's statements
@@ -155,7 +157,7 @@ def _withdrawn_section(entries: list[StudyClaims]) -> list[str]:
 
 def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], missing: list[str],
                    current: str = "", forest: str = "", register: Register | None = None,
-                   todo: tuple[int, str] = (0, "")) -> str:
+                   todo: tuple[int, str] = (0, ""), answers: list[str] | None = None) -> str:
     """The page (module docstring); ``entries`` carry frames already decided over every study;
     ``todo``: the runs ``make reports`` would run and their expected time (``refresh``)."""
     register = register or Register()
@@ -211,6 +213,7 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     quiet = [e for e in entries if e.frame.empty]
     if quiet:
         lines += ["Studies with runs but no claims: " + ", ".join(f"[{e.study}]({e.report})" for e in quiet) + ".", ""]
+    lines += answers or []  # the brief's three questions (report.answers), above their figures
     for caption, path in charts:
         lines += [f"## {caption}", "", f"![{caption}]({path})", ""]
     if stale:
@@ -267,7 +270,7 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
     path = root / "index.md"
     current = checkout_fingerprint()
     path.write_text(index_markdown(entries, charts, missing, current, FOREST if forest else "", register,
-                                   refresh(entries, current, studies_dir)))
+                                   refresh(entries, current, studies_dir), answers_markdown(root)))
     write_findings(root, studies_dir)  # every number FINDINGS.md may cite (report.findings)
     n = sum(len(e.frame) for e in entries)
     echo(f"index: {len(register.statements)} statements and {n} claims over {len(entries)} studies with runs"

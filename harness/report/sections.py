@@ -225,6 +225,8 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
         chosen_per_scene = speed_accuracy_scenes.smallest_per_scene(sa, data.df)
         sa.to_csv(out / "speed_accuracy.csv", index=False)
         chosen_per_scene.to_csv(out / "speed_accuracy_smallest.csv", index=False)
+        if not (cmp := speed_accuracy_scenes.method_comparison(data.df)).empty:
+            cmp.to_csv(out / "method_comparison.csv", index=False)
         for metric, file in (("psnr", "speed_accuracy.png"), ("psnr_cc", "speed_accuracy_psnr_cc.png"),
                              ("lpips_alex", "speed_accuracy_lpips_alex.png")):
             if metric not in data.df or not data.df[metric].notna().any():

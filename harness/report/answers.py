@@ -1,0 +1,106 @@
+"""The brief's three questions, answered in one sentence each from the committed reports' tables.
+
+- ``speed_sentence``: what FreeTimeGS++ costs and buys against FreeTimeGS at the grid's
+  reference cell (``speed_accuracy/method_comparison.csv``);
+- ``size_sentence``: the smallest budget within 0.1 dB of each method's best per scene
+  (``speed_accuracy/speed_accuracy_smallest.csv``) and the budget finder's answer on the scene of
+  known size (``budget/budget_known_size/budget.csv``);
+- ``stability_sentence``: where each method first breaks along the stability ladders, and on
+  how many ladders it loses quality (``stability/ladders.csv``).
+
+Each returns "" when its table is missing; ``answers_markdown`` lists the ones there are. The index
+puts them above its figures; FINDINGS.md cites the same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pandas as pd
+
+REFERENCE_CELL = (5000.0, 3000.0)  # the quick profile's budget and iterations
+KNOWN_SIZE = Path("budget") / "budget_known_size" / "budget.csv"
+
+
+def _read(path: Path) -> pd.DataFrame:
+    return pd.read_csv(path) if path.is_file() else pd.DataFrame()
+
+
+def _span(values: pd.Series, fmt: str) -> str:
+    lo, hi = float(values.min()), float(values.max())
+    return format(lo, fmt) if lo == hi else f"{format(lo, fmt)} to {format(hi, fmt)}"
+
+
+def speed_sentence(root: Path) -> str:
+    cmp = _read(root / "speed_accuracy" / "method_comparison.csv")
+    if cmp.empty:
+        return ""
+    ref = cmp[(cmp.budget == REFERENCE_CELL[0]) & (cmp.iterations == REFERENCE_CELL[1])]
+    ref = ref if len(ref) else cmp
+    first, second = ref["first"].iloc[0], ref["second"].iloc[0]
+    parts = [f"colour-aligned PSNR {_span(ref.d_psnr_cc, '+.2f')} dB", f"raw PSNR {_span(ref.d_psnr, '+.2f')} dB",
+             f"training time ×{_span(ref.r_train_seconds, '.2f')}"]
+    if ref.r_render_fps_1thread.notna().any():
+        parts.append(f"render FPS at one thread ×{_span(ref.r_render_fps_1thread.dropna(), '.2f')}")
+    if ref.r_model_bytes.notna().any():
+        parts.append(f"model size ×{_span(ref.r_model_bytes.dropna(), '.2f')}")
+    return (f"**Speed against accuracy:** at {ref.budget.iloc[0]:,.0f} Gaussians and {ref.iterations.iloc[0]:,.0f}"
+            f" iterations, `{second}` against `{first}` over {ref.scene_label.nunique()} scenes: " + ", ".join(parts)
+            + " (per scene and cell: speed_accuracy/index.md).")
+
+
+def _needs(r: pd.Series) -> str:
+    if r.variant == r.best_variant and r.budget >= r.largest_budget:
+        return f"{r.scene_label} ≥ {r.budget:,.0f} (no saturation)"
+    unsettled = pd.isna(r.gap_ci_includes_tol) or str(r.gap_ci_includes_tol) == "True"
+    return f"{r.scene_label} {r.budget:,.0f}" + (" (not settled)" if unsettled and r.variant != r.best_variant else "")
+
+
+def size_sentence(root: Path) -> str:
+    chosen = _read(root / "speed_accuracy" / "speed_accuracy_smallest.csv")
+    known = _read(root / KNOWN_SIZE)
+    parts = []
+    if not chosen.empty:
+        method = chosen["method"].fillna("") if "method" in chosen else pd.Series([""] * len(chosen))
+        for m, sub in chosen.groupby(method, sort=False):
+            parts.append((f"`{m}`: " if m else "") + ", ".join(_needs(r) for _, r in sub.iterrows()))
+    text = ""
+    if parts:
+        text = ("**The smallest sufficient model** (within 0.1 dB of the best on the grid up to 20,000 Gaussians): "
+                + "; ".join(parts) + ".")
+    if not known.empty and known.chosen.any():
+        row = known[known.chosen].iloc[0]
+        k = known.true_size.iloc[0]
+        found = f"{row.budget:,.0f} Gaussians" + ("" if bool(known.saturated.iloc[0]) else " (no saturation)")
+        ratio = "" if math.isnan(k) else f", {row.budget / k:.2f}× the K = {k:,.0f} that drew it"
+        text += f" On the scene of known size the budget finder answers {found}{ratio}."
+    return text.strip()
+
+
+def stability_sentence(root: Path) -> str:
+    table = _read(root / "stability" / "ladders.csv")
+    if table.empty or "n_broken" not in table:
+        return ""
+    methods = table[table.role == "method"]
+    parts = []
+    for v, sub in methods.groupby("variant", sort=False):
+        breaks = []
+        for lad, rows in sub.groupby("ladder", sort=False):
+            at = rows.first_break.iloc[0]
+            if not math.isnan(at):
+                r = rows[rows.rung == at].iloc[0]
+                breaks.append(f"{lad} {r.rung:g} ({r.n_broken}/{r.n_attempted})")
+        losing = sub.groupby("ladder", sort=False).first_loss.first().notna().sum()
+        parts.append(f"`{v}` breaks first at " + ("; ".join(breaks) if breaks else "no rung")
+                     + f" and loses quality somewhere on {losing} of {sub.ladder.nunique()} ladders")
+    return ("**Stability** (a break is a crash, divergence or colour collapse; k of n runs): " + "; ".join(parts)
+            + " (stability/index.md).")
+
+
+def answers_markdown(root: Path) -> list[str]:
+    """The section's lines ([] when no answer has its table yet)."""
+    found = [s for s in (speed_sentence(root), size_sentence(root), stability_sentence(root)) if s]
+    if not found:
+        return []
+    return ["## The brief's three questions, answered", "", *[f"- {s}" for s in found], ""]

@@ -1,0 +1,61 @@
+"""The brief's three answers, one sentence each, from report tables whose numbers are planted."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from harness.report.answers import answers_markdown, size_sentence, speed_sentence, stability_sentence
+
+
+def _write(root: Path, rel: str, rows: list[dict]) -> None:
+    (root / rel).parent.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows).to_csv(root / rel, index=False)
+
+
+def test_nothing_to_say_without_tables(tmp_path: Path) -> None:
+    assert answers_markdown(tmp_path) == []
+
+
+def test_speed_uses_the_reference_cell_and_spans_the_scenes(tmp_path: Path) -> None:
+    base = {"first": "ftgs", "second": "ftgspp", "iterations": 3000.0, "r_model_bytes": 1.0}
+    _write(tmp_path, "speed_accuracy/method_comparison.csv", [
+        {**base, "scene_label": "a", "budget": 5000.0, "d_psnr_cc": 0.3, "d_psnr": 0.1, "r_train_seconds": 1.1,
+         "r_render_fps_1thread": 0.9},
+        {**base, "scene_label": "b", "budget": 5000.0, "d_psnr_cc": -0.2, "d_psnr": 0.4, "r_train_seconds": 1.3,
+         "r_render_fps_1thread": 0.8},
+        {**base, "scene_label": "a", "budget": 500.0, "d_psnr_cc": 9.0, "d_psnr": 9.0, "r_train_seconds": 9.0,
+         "r_render_fps_1thread": 9.0}])
+    s = speed_sentence(tmp_path)
+    assert "at 5,000 Gaussians and 3,000 iterations, `ftgspp` against `ftgs` over 2 scenes" in s
+    assert "colour-aligned PSNR -0.20 to +0.30 dB" in s and "training time ×1.10 to 1.30" in s
+    assert "render FPS at one thread ×0.80 to 0.90" in s and "model size ×1.00" in s and "9.0" not in s
+
+
+def test_size_names_unsaturated_scenes_and_the_known_answer(tmp_path: Path) -> None:
+    row = {"method": "ftgs", "iterations": 3000.0, "largest_budget": 20000.0}
+    _write(tmp_path, "speed_accuracy/speed_accuracy_smallest.csv", [
+        {**row, "scene_label": "static", "budget": 1500.0, "variant": "ftgs_b1500", "best_variant": "ftgs_b5000",
+         "gap_ci_includes_tol": False},
+        {**row, "scene_label": "fast", "budget": 20000.0, "variant": "ftgs_b20000", "best_variant": "ftgs_b20000",
+         "gap_ci_includes_tol": None}])
+    _write(tmp_path, "budget/budget_known_size/budget.csv", [
+        {"budget": b, "chosen": b == 600, "saturated": True, "true_size": 500.0} for b in (250, 500, 600, 1000)])
+    s = size_sentence(tmp_path)
+    assert "`ftgs`: static 1,500, fast ≥ 20,000 (no saturation)." in s
+    assert "the budget finder answers 600 Gaussians, 1.20× the K = 500 that drew it" in s
+
+
+def test_stability_names_first_breaks_and_quality_losses(tmp_path: Path) -> None:
+    rows = []
+    for v, brk in (("baseline", 10.0), ("ftgspp", float("nan"))):
+        for rung, broken in ((1.0, 0), (3.0, 0), (10.0, 3 if v == "baseline" else 0)):
+            rows.append({"ladder": "lr_scale", "rung": rung, "variant": v, "role": "method", "n_broken": broken,
+                         "n_attempted": 3, "first_break": brk, "first_loss": 3.0})
+        rows.append({"ladder": "cameras", "rung": 10.0, "variant": v, "role": "method", "n_broken": 0,
+                     "n_attempted": 3, "first_break": float("nan"), "first_loss": float("nan")})
+    _write(tmp_path, "stability/ladders.csv", rows)
+    s = stability_sentence(tmp_path)
+    assert "`baseline` breaks first at lr_scale 10 (3/3) and loses quality somewhere on 1 of 2 ladders" in s
+    assert "`ftgspp` breaks first at no rung" in s
