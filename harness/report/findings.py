@@ -1,8 +1,8 @@
 """``reports/findings.json``: every number ``reports/FINDINGS.md`` may cite, made from the reports.
 
 ``collect_findings(root)`` reads the generated files under ``root`` (each study's
-``summary.csv``, ``runs.csv``, ``variance.csv``, ``ladders.csv``, ``speed_accuracy_smallest.csv``
-and the index's ``claims.csv``) and names every value: ``ablation.claims.flow_improves.effect``,
+``summary.csv``, ``runs.csv``, ``variance.csv``, ``ladders.csv``, ``speed_accuracy_smallest.csv``,
+``method_comparison.csv``, the budget pages' ``budget.csv`` and the index's ``claims.csv``) and names every value: ``ablation.claims.flow_improves.effect``,
 ``secret5.psnr.cc.studio.mean``, ``stability.psnr.diff.ftgspp.base-speed4`` (the difference of
 two cells' means), ``secret4.median.relocated_total.mcmc.studio`` (the median, ``min`` or
 ``max`` over a cell's finished runs of any logged number, tabled or not),
@@ -126,7 +126,14 @@ def collect_findings(root: Path, studies_dir: Path | None = None) -> dict[str, f
         if (folder / "ladders.csv").is_file():
             _table(study, folder / "ladders.csv", "ladder", ["ladder", "scene", "variant"], out)
         if (folder / "speed_accuracy_smallest.csv").is_file():
-            _table(study, folder / "speed_accuracy_smallest.csv", "smallest", ["scene"], out)
+            smallest = folder / "speed_accuracy_smallest.csv"  # one row per scene, or per scene and method
+            methods = pd.read_csv(smallest).get("method", pd.Series(dtype=str))
+            keys = ["scene", "method"] if methods.notna().any() else ["scene"]
+            _table(study, smallest, "smallest", keys, out)
+        if (folder / "method_comparison.csv").is_file():
+            _table(study, folder / "method_comparison.csv", "methods", ["scene", "budget", "iterations"], out)
+        for page in sorted(folder.glob("*/budget.csv")):  # study budget --out reports/budget
+            _table(f"{study}.{_slug(page.parent.name)}", page, "budget", ["budget"], out)
     if (root / "claims.csv").is_file():  # the index's verdicts: corrected over every study
         for _, r in pd.read_csv(root / "claims.csv").iterrows():
             for col in ("effect", "ci_low", "ci_high", "sesoi", "p", "p_tost", "p_adj", "p_tost_adj", "n_needed",
