@@ -151,8 +151,8 @@ def _axis(ax: plt.Axes, ladder: Ladder) -> None:
 
 def ladder_plot(table: pd.DataFrame, scenes: Sequence[StudyScene], title: str, path: Path) -> Path:
     """One column per ladder, one line per method: colour-aligned PSNR (mean ± std, raw PSNR
-    dashed) on top; below, the rate of breaking runs (crash, divergence or colour collapse) with
-    its exact 95 % interval, and the quality-loss rate dotted."""
+    dashed) on top; below, the rate of breaking runs (crash, divergence or colour collapse) and
+    the quality-loss rate dotted (their intervals are in the tables)."""
     lads = ladders_of(scenes)
     width = min(4.2, MAX_WIDTH_IN / len(lads)) * len(lads)
     fig, axes = plt.subplots(2, len(lads), figsize=(width, 7.0), squeeze=False, sharey="row",
@@ -166,9 +166,10 @@ def ladder_plot(table: pd.DataFrame, scenes: Sequence[StudyScene], title: str, p
             top.errorbar(sub.rung, sub.psnr_cc_mean, yerr=sub.psnr_cc_std.fillna(0), capsize=3,
                          label=f"{v}: colour-aligned", **style)
             top.plot(sub.rung, sub.psnr_mean, ls="--", alpha=0.6, label=f"{v}: raw", **style)
-            err = [100 * (sub.break_rate - sub.break_rate_low), 100 * (sub.break_rate_high - sub.break_rate)]
-            bottom.errorbar(sub.rung, 100 * sub.break_rate, yerr=err, capsize=3, label=f"{v}: breaks", **style)
-            bottom.plot(sub.rung, 100 * sub[f"rate_{QUALITY}"], ls=":", label=f"{v}: quality loss", **style)
+            # the first method hollow and larger, so a point two methods share shows both
+            rates = {"ms": 9 - 3 * min(k, 1), "mfc": "none" if k == 0 else f"C{k}"}
+            bottom.plot(sub.rung, 100 * sub.break_rate, label=f"{v}: breaks", **style, **rates)
+            bottom.plot(sub.rung, 100 * sub[f"rate_{QUALITY}"], ls=":", label=f"{v}: quality loss", **style, **rates)
         for ax in (top, bottom):
             _axis(ax, lad)
         top.set_title(f"{lad.name}\n(base: {lad.base.scene.title})", fontsize=9)
@@ -180,8 +181,8 @@ def ladder_plot(table: pd.DataFrame, scenes: Sequence[StudyScene], title: str, p
     h2, l2 = axes[1][0].get_legend_handles_labels()
     if handles or h2:
         fig.legend(handles + h2, labels + l2, fontsize=7, loc="outside lower center", ncols=4)
-    fig.suptitle(f"{title}\nbreaks: {', '.join(KIND_NAMES[k] for k in BREAKS)} (95 % interval);"
-                 " quality loss dotted")
+    fig.suptitle(f"{title}\nbreaks: {', '.join(KIND_NAMES[k] for k in BREAKS)}; quality loss dotted"
+                 " (rates with their 95 % intervals: the tables)")
     return save_figure(fig, path)
 
 

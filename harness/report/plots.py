@@ -187,6 +187,7 @@ def stability_plot(st: pd.DataFrame, variants: list[str], scenes: list[str], lab
     axes[2].set_xticks(x, names, rotation=90)  # upright names: a box per name, none can overlap
     axes[2].set_xlabel("difficulty cell")
     axes[2].set_ylim(0, 125)
-    axes[0].legend(title="method", fontsize=8, ncols=min(len(variants), 5), loc="lower left")
+    handles, names = axes[0].get_legend_handles_labels()  # outside the panels: no point hides under it
+    fig.legend(handles, names, title="method", fontsize=8, ncols=min(len(variants), 5), loc="outside lower center")
     fig.suptitle(title)
     return save_figure(fig, path)
