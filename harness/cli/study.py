@@ -213,7 +213,10 @@ def cmd_budget(args: argparse.Namespace) -> int:
     if args.preset:  # a known-size scene says how many Gaussians drew it
         marker = Path(scene.synth_dir) / "known_size.json"
         true_size = json.loads(marker.read_text())["k"] if marker.is_file() else None
-    path = write(found, args.out / found.scene, true_size)
+    where = f"--preset {args.preset}" if args.preset else f"--data {args.data}"
+    command = " ".join([f"study budget {where} --start {args.start} --max {args.max} --seeds {args.seeds}",
+                        f"--threshold {args.threshold:g} --metric {args.metric} --out {args.out}", *args.overrides])
+    path = write(found, args.out / found.scene, true_size, command)
     print(path.read_text().split("\n**")[-1].strip() if found.saturated else "no saturation: see " + str(path))
     print(f"report: {path}")
     return 0

@@ -26,8 +26,11 @@ def frame(found: BudgetSearch) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def markdown(found: BudgetSearch, true_size: int | None = None) -> str:
-    """The page; ``true_size``: the number of Gaussians a known-size scene is drawn from."""
+def markdown(found: BudgetSearch, true_size: int | None = None, command: str = "") -> str:
+    """The page; ``true_size``: the number of Gaussians a known-size scene is drawn from;
+    ``command``: the invocation that made it (named with the code version)."""
+    from harness.tracking.provenance import git_sha, trainer_fingerprint
+
     table = frame(found)
     lines = [f"# The smallest budget scene `{found.scene}` needs", "",
              f"Doubling from {table.budget.min()} Gaussians while doubling gains at least {found.threshold:g} dB of"
@@ -50,13 +53,15 @@ def markdown(found: BudgetSearch, true_size: int | None = None) -> str:
         lines.append(f"**Smallest sufficient budget: {found.chosen} Gaussians**, {g.mean:.2f} dB"
                      f" [{g.low:.2f}, {g.high:.2f}] below {found.best} ({settled}); it saves"
                      f" {found.seconds_saved():.1f} s of training per run.")
+    if command:
+        lines += ["", f"Made by `{command}` at commit `{git_sha()}` (trainer `{trainer_fingerprint()}`)."]
     if true_size:
         lines += ["", f"The scene is drawn from **K = {true_size:,} Gaussians** that FreeTimeGS can redraw one for one"
                       f" (harness/run/known_size.py): the answer is {found.chosen / true_size:.2f} times its true size."]
     return "\n".join(lines) + "\n"
 
 
-def write(found: BudgetSearch, out: Path, true_size: int | None = None) -> Path:
+def write(found: BudgetSearch, out: Path, true_size: int | None = None, command: str = "") -> Path:
     """``budget.md``, ``budget.csv`` and ``budget.png`` under ``out``; returns the Markdown's path."""
     import matplotlib.pyplot as plt
 
@@ -80,5 +85,5 @@ def write(found: BudgetSearch, out: Path, true_size: int | None = None) -> Path:
     if true_size:
         ax.axvline(true_size, color="grey", ls=":", label=f"true size K = {true_size:,}")
         ax.legend(fontsize=8)
-    (out / "budget.md").write_text(markdown(found, true_size))
+    (out / "budget.md").write_text(markdown(found, true_size, command))
     return out / "budget.md"
