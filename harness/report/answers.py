@@ -72,9 +72,12 @@ def size_sentence(root: Path) -> str:
     if not known.empty and known.chosen.any():
         row = known[known.chosen].iloc[0]
         k = known.true_size.iloc[0]
-        found = f"{row.budget:,.0f} Gaussians" + ("" if bool(known.saturated.iloc[0]) else " (no saturation)")
         ratio = "" if math.isnan(k) else f", {row.budget / k:.2f}× the K = {k:,.0f} that drew it"
-        text += f" On the scene of known size the budget finder answers {found}{ratio}."
+        if bool(known.saturated.iloc[0]):
+            text += f" On the scene of known size the budget finder answers {row.budget:,.0f} Gaussians{ratio}."
+        else:
+            text += (f" On the scene of known size the budget finder does not saturate by {row.budget:,.0f} Gaussians"
+                     f"{ratio}.")
     return text.strip()
 
 

@@ -56,8 +56,11 @@ def markdown(found: BudgetSearch, true_size: int | None = None, command: str = "
     if command:
         lines += ["", f"Made by `{command}` at commit `{git_sha()}` (trainer `{trainer_fingerprint()}`)."]
     if true_size:
+        answer = (f"the answer is {found.chosen / true_size:.2f} times its true size" if found.saturated else
+                  f"the search did not saturate by {found.chosen:,} Gaussians, {found.chosen / true_size:.0f} times its"
+                  " true size")
         lines += ["", f"The scene is drawn from **K = {true_size:,} Gaussians** that FreeTimeGS can redraw one for one"
-                      f" (harness/run/known_size.py): the answer is {found.chosen / true_size:.2f} times its true size."]
+                      f" (harness/run/known_size.py): {answer}."]
     return "\n".join(lines) + "\n"
 
 

@@ -113,7 +113,8 @@ def seeds_markdown(table: pd.DataFrame) -> list[str]:
     text = ", ".join(f"{r.scene}/`{r.variant}` ({r.n_attempted})" for r in cells.itertuples())
     lines = [f"Cells where a method's failure rate changes from one rung to the next (attempted runs): {text}."]
     lines.append("Each has at least 5 runs." if few.empty else
-                 f"{len(few)} of them have fewer than 5 runs: read their rates with the interval.")
+                 f"{len(few)} of them {'has' if len(few) == 1 else 'have'} fewer than 5 runs: read their rates with"
+                 " the interval.")
     return lines + [""]
 
 

@@ -59,3 +59,10 @@ def test_stability_names_first_breaks_and_quality_losses(tmp_path: Path) -> None
     s = stability_sentence(tmp_path)
     assert "`baseline` breaks first at lr_scale 10 (3/3) and loses quality somewhere on 1 of 2 ladders" in s
     assert "`ftgspp` breaks first at no rung" in s
+
+
+def test_an_unsaturated_known_size_search_says_so(tmp_path: Path) -> None:
+    _write(tmp_path, "budget/budget_known_size/budget.csv", [
+        {"budget": b, "chosen": b == 16000, "saturated": False, "true_size": 500.0} for b in (500, 16000)])
+    assert size_sentence(tmp_path) == ("On the scene of known size the budget finder does not saturate by 16,000"
+                                       " Gaussians, 32.00× the K = 500 that drew it.")
