@@ -70,6 +70,7 @@ class BudgetSearch:
     scores: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed value of ``metric``
     seconds: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed train seconds
     faded: dict[int, list[float]] = field(default_factory=dict)  # budget -> per-seed Gaussians drawn nowhere
+    trainers: set[str] = field(default_factory=set)  # trainer fingerprints of the runs read
     steps: list[str] = field(default_factory=list)  # one line per decision
     chosen: int | None = None
     saturated: bool = False  # False: doubling still gained at the largest budget allowed

@@ -69,11 +69,15 @@ FAILURE_RULE = (
     "Each run gets one outcome, the first that fits: crash (FAILED for any reason but divergence);"
     " divergence (the loss became non-finite); colour collapse (finished, with a held-out gap between"
     f" colour-aligned and raw PSNR more than {COLOUR_DB:g} dB above the cell's reference gap, the mean gap"
-    " of FreeTimeGS without colour correction in the same cell); quality loss (finished, colour-aligned"
-    f" PSNR more than {QUALITY_METRIC_SESOI:g} dB, the metric's smallest effect of interest, below the same"
-    " method's mean on the ladder's base cell); else ok. Base-cell runs define the quality reference and"
-    " never lose quality. Each rate is k of n attempted runs with its exact 95 % interval"
-    " (Clopper-Pearson).")
+    " of the study's baseline in the same cell, whose own runs define it and are never judged for it);"
+    f" quality loss (finished, colour-aligned PSNR more than {QUALITY_METRIC_SESOI:g} dB, the metric's"
+    " smallest effect of interest, below the same method's mean on the ladder's base cell); else ok."
+    " Base-cell runs define the quality reference and never lose quality. Each rate is k of n attempted"
+    " runs with its exact 95 % interval (Clopper-Pearson). A single run falls below the SESOI by seed"
+    " noise too, so a rung's loss counts as *settled* only when the 95 % Welch interval of its mean"
+    " minus the base cell's lies wholly below minus the SESOI. On ladders that change the scene"
+    " (cameras, colour shift, motion speed) the base is an easier scene: a loss there is the scene's"
+    " as much as the method's, so compare the methods' rows.")
 
 
 @dataclass(frozen=True)
@@ -136,12 +140,22 @@ def outcome(status: str, failure: str, quality: float, reference: float, gap: fl
 def _with_metrics(df: pd.DataFrame) -> pd.DataFrame:
     """``df`` with the quality metric, raw PSNR and the gap as columns (NaN where not logged)."""
     out = df.copy()
+    if METRIC not in out and RAW in out:  # runs from before colour-aligned PSNR: judge the raw one
+        out[METRIC] = out[RAW]
     for col in (METRIC, RAW):
         if col not in out:
             out[col] = math.nan
     computed = out[METRIC] - out[RAW]
     out[GAP] = out[GAP].fillna(computed) if GAP in out else computed
     return out
+
+
+def _reference_variant(variant: str, have: set[str]) -> str:
+    """``variant`` when it has base-cell runs, else the longest name it extends that has."""
+    if variant in have:
+        return variant
+    parents = [k for k in have if variant.startswith(k + "_")]
+    return max(parents, key=len) if parents else ""
 
 
 def _references(df: pd.DataFrame, ladder: Ladder) -> dict[str, float]:
@@ -227,6 +241,23 @@ def _cell(runs: pd.DataFrame) -> dict[str, object]:
     return row
 
 
+def settled_loss(cell: pd.Series, base: pd.Series) -> dict[str, float]:
+    """The cell's colour-aligned PSNR minus the base cell's (the same variant's finished runs),
+    with its 95 % Welch interval; ``loss_settled`` is 1.0 when the whole interval lies below
+    minus the SESOI (a quality loss the runs resolve, not seed noise), 0.0 when it does not,
+    NaN without two runs on each side."""
+    from scipy import stats
+
+    a, b = cell.dropna().to_numpy(float), base.dropna().to_numpy(float)
+    out = {"loss_diff": float(a.mean() - b.mean()) if len(a) and len(b) else math.nan,
+           "loss_diff_low": math.nan, "loss_diff_high": math.nan, "loss_settled": math.nan}
+    if len(a) > 1 and len(b) > 1 and (a.std() > 0 or b.std() > 0):
+        ci = stats.ttest_ind(a, b, equal_var=False).confidence_interval(0.95)
+        out.update(loss_diff_low=float(ci.low), loss_diff_high=float(ci.high),
+                   loss_settled=float(ci.high < -QUALITY_METRIC_SESOI))
+    return out
+
+
 def _first(rows: pd.DataFrame, column: str) -> float:
     """The first rung (``rows`` in ladder order) where ``column`` is above zero, else NaN."""
     hit = rows[rows[column] > 0]
@@ -235,33 +266,41 @@ def _first(rows: pd.DataFrame, column: str) -> float:
 
 def ladder_table(df: pd.DataFrame, scenes: Sequence[StudyScene], baseline: str = "baseline") -> pd.DataFrame:
     """One row per (ladder, rung, variant) with runs: cell, role, counts and rates per failure
-    kind with intervals, mean ± std colour-aligned and raw PSNR of finished runs, and the
-    variant's ``first_break`` (crash, divergence or colour collapse) and ``first_loss`` (quality
-    loss) rungs."""
+    kind with intervals, mean ± std colour-aligned and raw PSNR of finished runs, the cell's
+    difference from the base cell with its Welch interval (``settled_loss``), and the variant's
+    ``first_break`` (crash, divergence or colour collapse) and ``first_loss`` (the first rung
+    whose loss is settled) rungs."""
     rows = []
     for lad in ladders_of(scenes):
         runs = classify(df, lad, baseline)
         if runs.empty:
             continue
+        base = runs[(runs.step == 0) & (runs.status == "FINISHED")]
         for (step, v), sub in runs.groupby(["step", "variant"], sort=False):
             r = lad.rungs[int(step)]
+            ref = base[base.variant == _reference_variant(str(v), set(base.variant))][METRIC]
+            loss = settled_loss(sub.loc[sub.status == "FINISHED", METRIC], ref) if step else {}
             rows.append({"ladder": lad.name, "step": int(step), "rung": r.value, "scene": r.scene.name,
-                         "scene_label": r.scene.title, "variant": v, "role": role(str(v), lad), **_cell(sub)})
+                         "scene_label": r.scene.title, "variant": v, "role": role(str(v), lad), **_cell(sub),
+                         **loss})
     out = pd.DataFrame(rows)
     if out.empty:
         return out
+    if "loss_settled" not in out:
+        out["loss_settled"] = math.nan
     out["first_break"] = math.nan
     out["first_loss"] = math.nan
     for _, sub in out.groupby(["ladder", "variant"], sort=False):
         out.loc[sub.index, "first_break"] = _first(sub, "n_broken")
-        out.loc[sub.index, "first_loss"] = _first(sub, f"n_{QUALITY}")
+        out.loc[sub.index, "first_loss"] = _first(sub, "loss_settled")
     return out
 
 
 def first_breaks(table: pd.DataFrame) -> pd.DataFrame:
     """Per (ladder, variant): the first rung, from the base, where some run broke (crash,
-    divergence or colour collapse), and the first with a quality loss; ``text`` names them or
-    says "none up to <last rung with runs>"."""
+    divergence or colour collapse), and the first whose quality loss is settled (its Welch
+    interval below minus the SESOI); ``text`` and ``loss_text`` name them or say "none up to
+    <last rung with runs>"."""
     rows = []
     for (lad, v), sub in table.groupby(["ladder", "variant"], sort=False):
         tried = sub[sub.n_attempted > 0]
@@ -287,7 +326,7 @@ def changing_rungs(table: pd.DataFrame) -> pd.DataFrame:
     keep = set()
     methods = table[table.role == METHOD]
     for _, sub in methods.groupby(["ladder", "variant"], sort=False):
-        sub = sub.sort_values("step")
+        sub = sub[sub.n_attempted > 0].sort_values("step")  # a rung without runs has no rate to compare
         rates = sub[[f"rate_{k}" for k in KINDS]].fillna(-1).to_numpy()
         for i in range(1, len(sub)):
             if (rates[i] != rates[i - 1]).any():

@@ -39,6 +39,8 @@ COLUMNS = ["scene", "scene_label", "method", "variant", "budget", "iterations", 
            "train_seconds", "n_gaussians", "pareto_time", "pareto_gaussians", *[f"{m}_mean" for m in EXTRA], "n_alive"]
 CHOSEN_CELL = ["scene", "scene_label", "method", "variant", "budget", "iterations", "n", "mean", "ci95",
                "train_seconds", "n_gaussians"]  # copied from the chosen variant's row
+CHOSEN_COLUMNS = [*CHOSEN_CELL, "best_variant", "best_mean", "best_ci95", "gap", "gap_ci95", "gap_ci_includes_tol",
+                  "largest_budget"]
 _GRID = re.compile(r"^(?:(?P<method>.+?)_)?b\d+k?_i\d+k?$")
 
 
@@ -46,8 +48,6 @@ def method_of(variant: str) -> str:
     """``ftgspp`` for ``ftgspp_b5000_i3000``; "" for a plain ``b5000_i3000`` (or any other name)."""
     m = _GRID.match(str(variant))
     return (m.group("method") or "") if m else ""
-CHOSEN_COLUMNS = [*CHOSEN_CELL, "best_variant", "best_mean", "best_ci95", "gap", "gap_ci95", "gap_ci_includes_tol",
-                  "largest_budget"]
 
 
 def per_scene(df: pd.DataFrame, metric: str = "psnr") -> pd.DataFrame:
@@ -55,7 +55,7 @@ def per_scene(df: pd.DataFrame, metric: str = "psnr") -> pd.DataFrame:
 
     ``n`` counts finished runs, ``n_failed`` the planned runs that did not finish; ``ci95`` is
     the half-width of the t-interval of the mean (NaN when n < 2). Pareto flags compare the
-    variants of one scene only.
+    variants of one scene and method only.
     """
     frames = []
     df = df.assign(method=df.variant.map(method_of))
@@ -137,19 +137,21 @@ QUALITY_DIFFS = ("psnr", "psnr_cc", "lpips_alex")  # second method minus first, 
 COST_RATIOS = ("train_seconds", "render_fps_1thread", "model_bytes", "n_alive")  # second over first
 
 
-def method_comparison(df: pd.DataFrame) -> pd.DataFrame:
-    """Per (scene, budget, iterations) that two methods ran: the second method (in order of
-    appearance) against the first. ``d_<metric>``: difference of means with its 95% Welch
+def method_comparison(df: pd.DataFrame, first: str = "") -> pd.DataFrame:
+    """Per (scene, budget, iterations) that two methods ran: the other method against ``first``
+    (the study's baseline method; default: the first to appear). ``d_<metric>``: difference of means with its 95% Welch
     interval (``d_<metric>_low``/``_high``) for each of ``QUALITY_DIFFS``; ``r_<cost>``: ratio of
     means for each of ``COST_RATIOS`` (``n_alive``: Gaussians minus those drawn nowhere). Empty
     unless the runs come from exactly two methods."""
     df = df[df.status == "FINISHED"].assign(method=df.variant.map(method_of))
+    df = df[df.method != ""]  # variants outside the <method>_b<budget>_i<iterations> grid
     methods = list(dict.fromkeys(df.method))
-    if len(methods) != 2:
+    if len(methods) != 2 or (first and first not in methods):
         return pd.DataFrame()
     if {"n_gaussians", "n_faded"} <= set(df):
         df = df.assign(n_alive=df.n_gaussians - df.n_faded)
-    first, second = methods
+    first = first or methods[0]
+    second = next(m for m in methods if m != first)
     rows = []
     for (scene, budget, iterations), cell in df.groupby(["scene", "budget", "iterations"], sort=False):
         a, b = cell[cell.method == first], cell[cell.method == second]

@@ -113,5 +113,6 @@ def _read(found: BudgetSearch, spec: StudySpec, sel: Selection, budget: int) -> 
     found.scores[budget] = [r.metrics[found.metric] for r in latest.values() if found.metric in r.metrics]
     found.seconds[budget] = [r.metrics.get("train_seconds", np.nan) for r in latest.values()]
     found.faded[budget] = [r.metrics.get("n_faded", np.nan) for r in latest.values()]
+    found.trainers |= {r.tags["trainer_fingerprint"] for r in latest.values() if r.tags.get("trainer_fingerprint")}
     if len(found.scores[budget]) == 0:
         raise InputError(f"budget {budget}", f"no run finished (their errors: MLflow experiment ftgspp/{spec.name})")

@@ -106,7 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="exit 1 when a run differs unexpectedly (or no run could be compared)")
     budget = sub.add_parser("budget", help="the smallest Gaussian budget a scene needs (doubling, then bisection)")
     where = budget.add_mutually_exclusive_group(required=True)
-    where.add_argument("--preset", help="a built-in synthetic scene (ftgspp synth presets)")
+    where.add_argument("--preset", help="a built-in synthetic scene (ftgspp synth presets, or known_size: K = 500"
+                                        " Gaussians, harness/run/known_size.py)")
     where.add_argument("--data", help="a scene folder of yours")
     budget.add_argument("--start", type=int, default=500, help="first budget (default 500)")
     budget.add_argument("--max", type=int, default=64_000, help="largest budget to try (default 64000)")

@@ -32,34 +32,58 @@ def _span(values: pd.Series, fmt: str) -> str:
     return format(lo, fmt) if lo == hi else f"{format(lo, fmt)} to {format(hi, fmt)}"
 
 
+def _resolved(ref: pd.DataFrame, m: str) -> str:
+    """``, 1 of 4 scenes' 95% intervals excluding 0``: how many differences the runs resolve."""
+    low, high = ref.get(f"d_{m}_low"), ref.get(f"d_{m}_high")
+    if low is None or high is None:
+        return ""
+    k = int(((low > 0) | (high < 0)).sum())
+    return f" ({k} of {len(ref)} scenes' 95% intervals exclude 0)"
+
+
 def speed_sentence(root: Path) -> str:
+    """What the second method costs and buys against the first at ``REFERENCE_CELL`` (every
+    cell when the grid lacks it): the span over scenes of each difference and ratio."""
     cmp = _read(root / "speed_accuracy" / "method_comparison.csv")
     if cmp.empty:
         return ""
     ref = cmp[(cmp.budget == REFERENCE_CELL[0]) & (cmp.iterations == REFERENCE_CELL[1])]
-    ref = ref if len(ref) else cmp
+    where = f"at {REFERENCE_CELL[0]:,.0f} Gaussians and {REFERENCE_CELL[1]:,.0f} iterations"
+    if ref.empty:
+        ref, where = cmp, "over every cell of the grid"
     first, second = ref["first"].iloc[0], ref["second"].iloc[0]
-    parts = [f"colour-aligned PSNR {_span(ref.d_psnr_cc, '+.2f')} dB", f"raw PSNR {_span(ref.d_psnr, '+.2f')} dB",
-             f"training time ×{_span(ref.r_train_seconds, '.2f')}"]
+    parts = [f"colour-aligned PSNR {_span(ref.d_psnr_cc, '+.2f')} dB{_resolved(ref, 'psnr_cc')}",
+             f"raw PSNR {_span(ref.d_psnr, '+.2f')} dB", f"training time ×{_span(ref.r_train_seconds, '.2f')}"]
     if ref.r_render_fps_1thread.notna().any():
         parts.append(f"render FPS at one thread ×{_span(ref.r_render_fps_1thread.dropna(), '.2f')}")
     if ref.r_model_bytes.notna().any():
         parts.append(f"model size ×{_span(ref.r_model_bytes.dropna(), '.2f')}")
-    return (f"**Speed against accuracy:** at {ref.budget.iloc[0]:,.0f} Gaussians and {ref.iterations.iloc[0]:,.0f}"
-            f" iterations, `{second}` against `{first}` over {ref.scene_label.nunique()} scenes: " + ", ".join(parts)
-            + " (per scene and cell: speed_accuracy/index.md).")
+    return (f"**Speed against accuracy:** {where}, `{second}` against `{first}` over {ref.scene_label.nunique()}"
+            " scenes: " + ", ".join(parts) + " (per scene and cell: speed_accuracy/index.md).")
 
 
 def _needs(r: pd.Series) -> str:
+    """``static 5,000``; ``≥ 20,000 (no saturation)`` when the largest budget is the best;
+    ``(its best: more scores lower)`` when a smaller budget is the best outright."""
     if r.variant == r.best_variant and r.budget >= r.largest_budget:
         return f"{r.scene_label} ≥ {r.budget:,.0f} (no saturation)"
+    if r.variant == r.best_variant:
+        return f"{r.scene_label} {r.budget:,.0f} (its best: more Gaussians score lower)"
     unsettled = pd.isna(r.gap_ci_includes_tol) or str(r.gap_ci_includes_tol) == "True"
     return f"{r.scene_label} {r.budget:,.0f}" + (" (not settled)" if unsettled and r.variant != r.best_variant else "")
 
 
 def size_sentence(root: Path) -> str:
-    chosen = _read(root / "speed_accuracy" / "speed_accuracy_smallest.csv")
+    """Per method, each scene's smallest budget within 0.1 dB of that method's best colour-aligned
+    PSNR on the grid (raw PSNR for a report without it: the held-out camera's colour, which no
+    budget learns, flattens the raw one), or that it does not saturate; then the known-size
+    scene's search (raw PSNR: that scene has no colour shift)."""
+    aligned = _read(root / "speed_accuracy" / "speed_accuracy_smallest_psnr_cc.csv")
+    chosen = aligned if not aligned.empty else _read(root / "speed_accuracy" / "speed_accuracy_smallest.csv")
+    metric = "colour-aligned PSNR" if not aligned.empty else "raw PSNR"
     known = _read(root / KNOWN_SIZE)
+    if not {"chosen", "true_size", "saturated"} <= set(known):  # a page from before these columns
+        known = pd.DataFrame()
     parts = []
     if not chosen.empty:
         method = chosen["method"].fillna("") if "method" in chosen else pd.Series([""] * len(chosen))
@@ -67,8 +91,8 @@ def size_sentence(root: Path) -> str:
             parts.append((f"`{m}`: " if m else "") + ", ".join(_needs(r) for _, r in sub.iterrows()))
     text = ""
     if parts:
-        text = ("**The smallest sufficient model** (within 0.1 dB of the best on the grid up to 20,000 Gaussians): "
-                + "; ".join(parts) + ".")
+        text = (f"**The smallest sufficient model** (within 0.1 dB of the best {metric} on the grid up to"
+                f" {chosen.largest_budget.max():,.0f} Gaussians): " + "; ".join(parts) + ".")
     if not known.empty and known.chosen.any():
         row = known[known.chosen].iloc[0]
         k = known.true_size.iloc[0]
@@ -82,6 +106,8 @@ def size_sentence(root: Path) -> str:
 
 
 def stability_sentence(root: Path) -> str:
+    """Per method: the first rung of each ladder where a run broke (k of n), and on how many
+    ladders a quality loss is settled at some rung."""
     table = _read(root / "stability" / "ladders.csv")
     if table.empty or "n_broken" not in table:
         return ""
@@ -96,9 +122,10 @@ def stability_sentence(root: Path) -> str:
                 breaks.append(f"{lad} {r.rung:g} ({r.n_broken}/{r.n_attempted})")
         losing = sub.groupby("ladder", sort=False).first_loss.first().notna().sum()
         parts.append(f"`{v}` breaks first at " + ("; ".join(breaks) if breaks else "no rung")
-                     + f" and loses quality somewhere on {losing} of {sub.ladder.nunique()} ladders")
-    return ("**Stability** (a break is a crash, divergence or colour collapse; k of n runs): " + "; ".join(parts)
-            + " (stability/index.md).")
+                     + f" and has a settled quality loss on {losing} of {sub.ladder.nunique()} ladders")
+    return ("**Stability** (a break is a crash, divergence or colour collapse, k of n runs; a settled loss: the"
+            " rung's colour-aligned PSNR below the base cell's by more than the SESOI, its whole 95% interval): "
+            + "; ".join(parts) + " (stability/index.md).")
 
 
 def answers_markdown(root: Path) -> list[str]:

@@ -21,7 +21,8 @@ def frame(found: BudgetSearch) -> pd.DataFrame:
         return float(np.nanmean(v)) if np.isfinite(v).any() else np.nan
 
     rows = [{"budget": b, "n": len(p), "psnr_mean": float(np.mean(p)), "psnr_std": float(np.std(p, ddof=1))
-             if len(p) > 1 else np.nan, "train_seconds": mean(found.seconds[b]), "n_faded": mean(found.faded.get(b, []))}
+             if len(p) > 1 else np.nan, "train_seconds": mean(found.seconds[b]),
+             "n_faded": mean(found.faded.get(b, []))}
             for b, p in sorted(found.scores.items())]
     return pd.DataFrame(rows)
 
@@ -54,10 +55,12 @@ def markdown(found: BudgetSearch, true_size: int | None = None, command: str = "
                      f" [{g.low:.2f}, {g.high:.2f}] below {found.best} ({settled}); it saves"
                      f" {found.seconds_saved():.1f} s of training per run.")
     if command:
-        lines += ["", f"Made by `{command}` at commit `{git_sha()}` (trainer `{trainer_fingerprint()}`)."]
+        made = ", ".join(f"`{t}`" for t in sorted(found.trainers)) or f"`{trainer_fingerprint()}`"
+        trainers = "trainers" if len(found.trainers) > 1 else "trainer"
+        lines += ["", f"Made by `{command}` at commit `{git_sha()}`; the runs' {trainers}: {made}."]
     if true_size:
         answer = (f"the answer is {found.chosen / true_size:.2f} times its true size" if found.saturated else
-                  f"the search did not saturate by {found.chosen:,} Gaussians, {found.chosen / true_size:.0f} times its"
+                  f"the search did not saturate by {found.chosen:,} Gaussians, {found.chosen / true_size:.2f} times its"
                   " true size")
         lines += ["", f"The scene is drawn from **K = {true_size:,} Gaussians** that FreeTimeGS can redraw one for one"
                       f" (harness/run/known_size.py): {answer}."]
@@ -84,9 +87,9 @@ def write(found: BudgetSearch, out: Path, true_size: int | None = None, command:
     ax.set_title(f"{found.scene}: {label(found.metric).removesuffix(' (dB)')} per budget (mean ± std over seeds)",
                  fontsize=10)
     ax.grid(alpha=0.3)
-    save_figure(fig, out / "budget.png")
     if true_size:
         ax.axvline(true_size, color="grey", ls=":", label=f"true size K = {true_size:,}")
         ax.legend(fontsize=8)
+    save_figure(fig, out / "budget.png")
     (out / "budget.md").write_text(markdown(found, true_size, command))
     return out / "budget.md"

@@ -46,7 +46,10 @@ SIGNED = (".effect",)  # claims' effects: the direction a sentence may state (CI
 
 
 def _slug(name: object) -> str:
-    """A key part from a table row's or dataset's name: "hardware (kernel dispatch)" -> hardware_kernel_dispatch."""
+    """A key part from a table row's or dataset's name: "hardware (kernel dispatch)" -> hardware_kernel_dispatch;
+    a whole float as an integer (5000.0 -> 5000)."""
+    if isinstance(name, float) and name.is_integer():
+        name = int(name)
     return re.sub(r"[^\w\-]+", "_", str(name)).strip("_")
 
 
@@ -130,6 +133,8 @@ def collect_findings(root: Path, studies_dir: Path | None = None) -> dict[str, f
             methods = pd.read_csv(smallest).get("method", pd.Series(dtype=str))
             keys = ["scene", "method"] if methods.notna().any() else ["scene"]
             _table(study, smallest, "smallest", keys, out)
+        if (folder / "speed_accuracy_smallest_psnr_cc.csv").is_file():
+            _table(study, folder / "speed_accuracy_smallest_psnr_cc.csv", "smallest_cc", ["scene", "method"], out)
         if (folder / "method_comparison.csv").is_file():
             _table(study, folder / "method_comparison.csv", "methods", ["scene", "budget", "iterations"], out)
         for page in sorted(folder.glob("*/budget.csv")):  # study budget --out reports/budget

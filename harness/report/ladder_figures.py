@@ -55,7 +55,18 @@ def rate_text(k: int, n: int, low: float, high: float) -> str:
     return f"{k}/{n} ({100 * low:.0f}–{100 * high:.0f} %)"
 
 
-HEADER = ("| runs | colour-aligned PSNR | raw PSNR | " + " | ".join(KIND_NAMES[k] for k in KINDS) + " |")
+HEADER = ("| runs | colour-aligned PSNR | raw PSNR | " + " | ".join(KIND_NAMES[k] for k in KINDS)
+          + " | vs base (95 % CI) |")
+
+
+def loss_text(r: pd.Series) -> str:
+    """``−1.50 [−2.10, −0.90] settled``: the cell's colour-aligned PSNR minus the base cell's."""
+    d = r.get("loss_diff", math.nan)
+    if d is None or math.isnan(d):
+        return "—"
+    lo, hi = r.get("loss_diff_low", math.nan), r.get("loss_diff_high", math.nan)
+    text = f"{d:+.2f}" + ("" if math.isnan(lo) else f" [{lo:+.2f}, {hi:+.2f}]")
+    return text + (" **loss**" if r.get("loss_settled", 0.0) == 1.0 else "")
 
 
 def row_cells(r: pd.Series) -> str:
@@ -63,22 +74,22 @@ def row_cells(r: pd.Series) -> str:
     kinds = " | ".join(rate_text(int(r[f"n_{k}"]), int(r.n_attempted), r[f"rate_{k}_low"], r[f"rate_{k}_high"])
                        for k in KINDS)
     return (f"| {r.n_attempted} | {_num(r.psnr_cc_mean)} ± {_num(r.psnr_cc_std)} |"
-            f" {_num(r.psnr_mean)} ± {_num(r.psnr_std)} | {kinds} |")
+            f" {_num(r.psnr_mean)} ± {_num(r.psnr_std)} | {kinds} | {loss_text(r)} |")
 
 
 def ladder_markdown(table: pd.DataFrame, breaks: pd.DataFrame, ladder: str) -> list[str]:
     """One ladder's table (a row per rung and method) and its first-break lines."""
     sub = table[(table.ladder == ladder) & (table.role == METHOD)]
     lines = [f"### Ladder `{ladder}`", "", f"| {ladder} | cell | method " + HEADER,
-             "|---:|---|---|---:|---:|---:|" + "---:|" * len(KINDS)]
+             "|---:|---|---|---:|---:|---:|" + "---:|" * (len(KINDS) + 1)]
     for r in sub.sort_values("step", kind="stable").itertuples():
         tag = " (base)" if r.step == 0 else ""
         lines.append(f"| {r.rung:g}{tag} | {r.scene_label} | `{r.variant}` " + row_cells(pd.Series(r._asdict())))
     b = breaks[(breaks.ladder == ladder) & (breaks.role == METHOD)]
     lines += ["", "First rung that breaks a method (a crash, a divergence or a colour collapse): "
               + "; ".join(f"`{r.variant}` {r.text}" for r in b.itertuples()) + ".",
-              "First rung with a quality loss: " + "; ".join(f"`{r.variant}` {r.loss_text}" for r in b.itertuples())
-              + ".", ""]
+              "First rung with a settled quality loss (**loss**): "
+              + "; ".join(f"`{r.variant}` {r.loss_text}" for r in b.itertuples()) + ".", ""]
     return lines
 
 
@@ -92,7 +103,7 @@ def components_markdown(table: pd.DataFrame) -> list[str]:
             continue
         sub = sub.sort_values("role", key=lambda s: s != METHOD, kind="stable")
         lines += [f"#### Variants on {sub.scene_label.iloc[0]}", "", "| variant | role " + HEADER,
-                  "|---|---|---:|---:|---:|" + "---:|" * len(KINDS)]
+                  "|---|---|---:|---:|---:|" + "---:|" * (len(KINDS) + 1)]
         for r in sub.itertuples():
             unjudged |= math.isnan(r.reference_psnr) and r.step > 0
             lines.append(f"| `{r.variant}` | {r.role} " + row_cells(pd.Series(r._asdict())))
@@ -123,7 +134,8 @@ def ladders_markdown(table: pd.DataFrame, breaks: pd.DataFrame, figure: str = ""
     variants per cell, where the rates change and (when given) the figure."""
     lines = ["Each ladder starts at its base cell and makes one condition harder, rung by rung; rows are"
              " in that order. " + FAILURE_RULE + " Interrupted, running and missing runs are not attempted."
-             " PSNR columns: mean ± std of the finished runs.", ""]
+             " PSNR columns: mean ± std of the finished runs; \"vs base\": the rung's mean colour-aligned PSNR"
+             " minus the base cell's, with its Welch interval, **loss** where the loss is settled.", ""]
     if table.empty:
         return "\n".join(lines + ["No runs on any ladder."])
     for lad in dict.fromkeys(table.ladder):

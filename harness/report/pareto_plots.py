@@ -76,8 +76,8 @@ def pareto_plot(sa: pd.DataFrame, metric: str, title: str, path: Path) -> Path:
         row[0].set_title(str(cells.scene_label.iloc[0]) if len(cells) else scene, loc="left", fontsize=9)
     handles = [Line2D([], [], color=f"C{k}", marker="o", ls="--", label=f"{m or 'all'} (front dashed)")
                for k, m in enumerate(methods)]
-    handles += [Line2D([], [], color="grey", marker=MARKERS[k % len(MARKERS)], ls="none", label=f"{int(it):,} iterations")
-                for k, it in enumerate(its)]
+    handles += [Line2D([], [], color="grey", marker=MARKERS[k % len(MARKERS)], ls="none",
+                       label=f"{int(it):,} iterations") for k, it in enumerate(its)]
     fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 5), fontsize=8)
     fig.suptitle(title)
     return save_figure(fig, path)

@@ -176,9 +176,11 @@ def stability_plot(st: pd.DataFrame, variants: list[str], scenes: list[str], lab
     names = [labels.get(s, s) for s in scenes]
     for ax, ylabel, sub_title in (
         (axes[0], pretty(st.attrs.get("metric", "psnr")) + " (mean ± std)", "quality"),
-        (axes[1], "spread: max − min PSNR (dB)", "run-to-run spread"),
-        (axes[2], "failed runs (%)", "failure rate, labelled where above 0 %: runs that crashed or diverged"
-         + (", or collapsed their colours (ladders.png)" if "quality_rate" in st else "")),
+        (axes[1], f"spread: max − min {pretty(st.attrs.get('metric', 'psnr')).removesuffix(' (dB)')} (dB)",
+         "run-to-run spread"),
+        (axes[2], "breaking runs (%)" if "quality_rate" in st else "failed runs (%)",
+         "labelled where above 0 %: runs that crashed or diverged"
+         + (", or collapsed their colours (ladders.png; quality losses there)" if "quality_rate" in st else "")),
     ):
         ax.set_xlim(-0.6, len(scenes) - 0.4)
         ax.set_ylabel(ylabel)

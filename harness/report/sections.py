@@ -225,7 +225,12 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
         chosen_per_scene = speed_accuracy_scenes.smallest_per_scene(sa, data.df)
         sa.to_csv(out / "speed_accuracy.csv", index=False)
         chosen_per_scene.to_csv(out / "speed_accuracy_smallest.csv", index=False)
-        if not (cmp := speed_accuracy_scenes.method_comparison(data.df)).empty:
+        if "psnr_cc" in data.df and data.df["psnr_cc"].notna().any():  # the model's own need (report.answers)
+            aligned = speed_accuracy_scenes.per_scene(data.df, "psnr_cc")
+            speed_accuracy_scenes.smallest_per_scene(aligned, data.df, metric="psnr_cc").to_csv(
+                out / "speed_accuracy_smallest_psnr_cc.csv", index=False)
+        first = speed_accuracy_scenes.method_of(data.baseline)
+        if not (cmp := speed_accuracy_scenes.method_comparison(data.df, first)).empty:
             cmp.to_csv(out / "method_comparison.csv", index=False)
         for metric, file in (("psnr", "speed_accuracy.png"), ("psnr_cc", "speed_accuracy_psnr_cc.png"),
                              ("lpips_alex", "speed_accuracy_lpips_alex.png")):

@@ -110,7 +110,8 @@ def report_markdown(df: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr",
     chosen = smallest_per_scene(sa, df, tol_db, metric)
     lines = [f"### Smallest budget within {tol_db:g} dB of the best, per scene{on}", "",
              f"Per scene (and method), the variant with the smallest Gaussian budget (then fewest iterations,"
-             f" then least time) whose mean {label(metric)} is within {tol_db:g} dB of that scene's best."
+             f" then least time) whose mean {label(metric)} is within {tol_db:g} dB of that scene's (and"
+             " method's) best."
              " Gap = best mean − chosen mean, 95% CI from a Welch t-interval over the two variants' runs;"
              f" when it reaches {tol_db:g} dB, the runs cannot tell whether the budget is enough.", "",
              markdown(chosen, tol_db, metric)]
@@ -142,10 +143,13 @@ def _ratio(x: float) -> str:
     return "—" if math.isnan(x) else f"×{x:.2f}"
 
 
-def method_markdown(df: pd.DataFrame) -> str:
-    """What the second method costs and buys against the first, per scene and grid cell: quality
-    differences with 95% Welch intervals, cost ratios; "" unless the grid has two methods."""
-    cmp = method_comparison(df)
+def method_markdown(df: pd.DataFrame, baseline: str = "") -> str:
+    """What the other method costs and buys against the baseline variant's, per scene and grid
+    cell: quality differences with 95% Welch intervals, cost ratios; "" unless the grid has two
+    methods."""
+    from harness.analysis.speed_accuracy_scenes import method_of
+
+    cmp = method_comparison(df, method_of(baseline))
     if cmp.empty:
         return ""
     first, second = cmp["first"].iloc[0], cmp["second"].iloc[0]
@@ -153,8 +157,8 @@ def method_markdown(df: pd.DataFrame) -> str:
              f"Same scene, budget and iterations; quality: `{second}` minus `{first}` (mean difference, 95% Welch"
              f" interval over the runs); cost: `{second}` over `{first}` (ratio of means). Alive Gaussians leave"
              " out those drawn nowhere in the clip. Render FPS: `study measure`, one model at a time.", "",
-             "| Scene | Budget | Iterations | Δ PSNR (dB) | Δ colour-aligned PSNR (dB) | Δ LPIPS-Alex |"
-             " training time | render FPS (1 thread) | model bytes | alive Gaussians |",
+             "| Scene | Budget | Iterations | Δ PSNR (dB) | Δ colour-aligned PSNR (dB) | Δ LPIPS-Alex (lower is"
+             " better) | training time | render FPS, 1 thread (> 1: faster) | model bytes | alive Gaussians |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for _, r in cmp.iterrows():
         lines.append(f"| {r.scene_label} | {_count(r.budget)} | {_count(r.iterations)} | {_ci(r, 'psnr', 2)} |"

@@ -104,7 +104,7 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
                   " [speed_accuracy_smallest.csv](speed_accuracy_smallest.csv).", ""]
         if "psnr_cc" in df and df["psnr_cc"].notna().any():
             lines += [speed_accuracy_text.colour_aligned_markdown(df), ""]
-        if methods := speed_accuracy_text.method_markdown(df):
+        if methods := speed_accuracy_text.method_markdown(df, data.baseline):
             lines += [methods, ""]
     elif "speed_accuracy" in study.plots:
         sa = aggregate.speed_accuracy(df)

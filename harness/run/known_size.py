@@ -10,10 +10,10 @@ composites onto (``TrainConfig.background``). Frames are rendered with ``ftgspp.
 (``ftgspp.data.synthetic.rig``: ``cam00``, the middle camera, is held out) and written in the
 DyNeRF layout with lossless video and no sensor noise or colour shift, so no budget has to
 spend Gaussians on anything but the blobs. A budget of ``k`` can in principle redraw every
-frame exactly; the finder's answer should come out near ``k`` (``reports/budget``).
+frame exactly; ``reports/budget`` shows what the finder answers (reports/FINDINGS.md reads it).
 
-A study scene names it as a synthetic preset (``synth: {preset: known_size, k: 500}``;
-``run.scenes`` dispatches it here); ``study budget --preset known_size`` searches it. The true
+A study scene names it as a synthetic preset (``synth: {preset: known_size, k: 500}``; its
+arguments and their checks are ``harness.spec.known_size``, and ``run.scenes`` dispatches it here); ``study budget --preset known_size`` searches it. The true
 parameters are kept beside the videos in ``known_size.npz`` and described in
 ``known_size.json``. It lives in the harness, not in ``ftgspp.data.synthetic``: it is an
 instrument for checking the harness's budget answer, and it draws with the trainer's renderer
@@ -23,54 +23,14 @@ as it is.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ftgspp.data.synthetic.presets import SynthConfig
 from ftgspp.errors import InputError
-
-PRESET = "known_size"
-
-
-RIG_FIELDS = ("n_cameras", "n_frames", "fps", "width", "height", "hfov_deg", "arc_deg", "rig_radius")
-
-
-@dataclass(frozen=True)
-class KnownSizeConfig:
-    """The knobs of a known-size scene; everything is a deterministic function of them. The
-    cameras and the clip are the synthetic presets' (``rig``: a ``SynthConfig`` whose
-    ``RIG_FIELDS`` a study may override)."""
-
-    k: int = 500  # Gaussians that draw the scene
-    moving_share: float = 0.25  # the share of them that moves (in straight lines)
-    speed: float = 0.5  # units/s of every moving Gaussian
-    sigma_px: float = 3.0  # typical blob size: standard deviation in pixels of a full-size view at the target
-    seed: int = 0
-    layout: str = "dynerf"
-    preset: str = PRESET
-    rig: SynthConfig = field(default_factory=SynthConfig)
-
-
-TARGET = np.array([0.0, 0.2, 1.4])  # where the rig looks (as the synthetic presets)
-EYE_HEIGHT = -0.3
-
-
-def resolve(args: dict[str, Any]) -> KnownSizeConfig:
-    """The config of study-file arguments (``InputError`` for an unknown or bad one)."""
-    own = {f.name for f in fields(KnownSizeConfig)} - {"rig"}
-    bad = sorted(set(args) - own - set(RIG_FIELDS))
-    if bad:
-        raise InputError(PRESET, f"unknown argument(s) {', '.join(bad)} (known: {', '.join(sorted(own | set(RIG_FIELDS)))})")
-    rig = replace(SynthConfig(), **{k: v for k, v in args.items() if k in RIG_FIELDS})
-    cfg = KnownSizeConfig(**{k: v for k, v in args.items() if k in own}, rig=rig)
-    if cfg.layout != "dynerf":
-        raise InputError(PRESET, f"writes the dynerf layout only, not '{cfg.layout}'")
-    if cfg.k < 1 or not 0 <= cfg.moving_share <= 1 or rig.n_cameras < 3 or rig.n_frames < 2:
-        raise InputError(PRESET, "needs k >= 1, 0 <= moving_share <= 1, n_cameras >= 3 and n_frames >= 2")
-    return cfg
+from harness.spec.known_size import EYE_HEIGHT, PRESET, RIG_FIELDS, TARGET, KnownSizeConfig, resolve  # noqa: F401
 
 
 def draw_gaussians(cfg: KnownSizeConfig) -> dict[str, np.ndarray]:
@@ -130,7 +90,8 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = PRESET, seed
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     g = draw_gaussians(cfg)
-    cams = make_rig(cfg.rig.n_cameras, cfg.rig.width, cfg.rig.height, cfg.rig.hfov_deg, cfg.rig.arc_deg, cfg.rig.rig_radius,
+    rig = cfg.rig
+    cams = make_rig(rig.n_cameras, rig.width, rig.height, rig.hfov_deg, rig.arc_deg, rig.rig_radius,
                     target=TARGET, eye_height=EYE_HEIGHT)
     times = np.arange(cfg.rig.n_frames) / cfg.rig.fps
     t_mid = float(times[-1]) / 2
@@ -145,7 +106,32 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = PRESET, seed
         "k": cfg.k, "moving": int(g["moving"].sum()), "params": {**{k: v for k, v in asdict(cfg).items() if k != "rig"},
                    **{f: getattr(cfg.rig, f) for f in RIG_FIELDS}}, "test_cameras": [cams[0].name],
         "gaussians": "known_size.npz: means at t_mid [k, 3], velocities units/s, scales (activated), quats (w, x,"
-                     " y, z), opacities, colors (RGB), moving (0/1); position at time t = means + velocities (t - t_mid)",
+                     " y, z), opacities, colors (RGB), moving (0/1);"
+                     " position at time t = means + velocities (t - t_mid)",
         "background": [0.0, 0.0, 0.0],
     }, indent=2))
     return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m harness.run.known_size --out DIR [--seed N] [--set k=500 ...]``: write the scene
+    (the command a study run's ``command`` column gives for it); exit status 2 on bad input."""
+    import argparse
+    import sys
+
+    p = argparse.ArgumentParser(prog="python -m harness.run.known_size", description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--set", action="append", default=[], metavar="KEY=JSON", help="a scene argument, e.g. k=500")
+    args = p.parse_args(argv)
+    try:
+        extra = {k: json.loads(v) for k, _, v in (item.partition("=") for item in args.set)}
+        generate(args.out, seed=args.seed, **extra)
+    except (InputError, json.JSONDecodeError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

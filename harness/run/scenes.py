@@ -20,6 +20,7 @@ import shutil
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from harness.run import known_size
 from harness.spec.study_schema import StudyScene
 
 MARKER = ".study_synth.json"
@@ -44,12 +45,7 @@ def _generated_with(out: Path, args: dict[str, Any]) -> bool:
     return meta.get("layout") == args["layout"] and meta.get("params") == want
 
 
-def _default_generator(preset: str = "") -> Generator:
-    """``ftgspp synth``'s generator, or the harness's known-size scene (``run.known_size``)."""
-    from harness.run import known_size
-
-    if preset == known_size.PRESET:
-        return known_size.generate
+def _default_generator() -> Generator:
     from ftgspp.data.synthetic.build import generate
 
     return generate
@@ -72,7 +68,9 @@ def ensure_scene(scene: StudyScene, generate: Generator | None = None, echo: Cal
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.parent.mkdir(parents=True, exist_ok=True)
     extra = {k: v for k, v in args.items() if k not in {"preset", "seed", "layout"}}
-    (generate or _default_generator(args["preset"]))(tmp, args["layout"], args["preset"], args["seed"], **extra)
+    if generate is None and args["preset"] == known_size.PRESET:  # the harness's own scene
+        generate = known_size.generate
+    (generate or _default_generator())(tmp, args["layout"], args["preset"], args["seed"], **extra)
     (tmp / MARKER).write_text(json.dumps(args, sort_keys=True))
     if out.exists():
         shutil.rmtree(out)

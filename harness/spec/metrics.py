@@ -220,7 +220,7 @@ for _m in (
     Metric("render_fps_1thread", "render FPS, 1 thread", 1, HIGHER, RESOURCES, deterministic=False),
     Metric("render_fps_all_cores", "render FPS, all cores", 1, HIGHER, RESOURCES, deterministic=False),
     Metric("render_cores", "cores for the all-cores FPS", 0, NEITHER, RESOURCES, claimable=False, deterministic=False),
-    Metric("model_bytes", "model size (bytes)", 0, LOWER, RESOURCES, unit="B"),
+    Metric("model_bytes", "model size (bytes)", 0, LOWER, RESOURCES, unit="bytes"),
     # what the initial point set is made of (ftgspp/init/quality.py; also each run's init.json)
     Metric("init_matcher_dense", "dense matching (1) or SIFT (0)", 0, NEITHER, claimable=False),
     Metric("init_points_total", "real initial points", 0, NEITHER, claimable=False),

@@ -10,6 +10,7 @@ import json
 import shlex
 from dataclasses import dataclass, field
 
+from harness.spec.known_size import PRESET as KNOWN_SIZE
 from harness.spec.study_files import require
 from harness.spec.study_schema import StudyScene, StudySpec, plural
 
@@ -137,7 +138,12 @@ def standalone_command(run: RunSpec, threads: str = "") -> str:
     depend on it in the default determinism mode)."""
     parts = []
     scene = run.scene
-    if scene.synth is not None:
+    if scene.synth is not None and scene.synth.get("preset") == KNOWN_SIZE:  # the harness's own scene
+        synth = ["python", "-m", "harness.run.known_size", "--out", scene.synth_dir, "--seed", str(scene.synth["seed"])]
+        synth += [f"--set={key}={json.dumps(value)}" for key, value in scene.synth.items()
+                  if key not in ("preset", "seed", "layout")]
+        parts.append(" ".join(shlex.quote(p) for p in synth))
+    elif scene.synth is not None:
         synth = ["ftgspp", "synth", "--out", scene.synth_dir]
         for key, value in scene.synth.items():
             flag = SYNTH_FLAGS.get(key)

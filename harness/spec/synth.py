@@ -14,7 +14,7 @@ def validate_synth(scene: StudyScene) -> None:
 
     args = dict(scene.synth)
     where = f"scene '{scene.name}' synth"
-    from harness.run import known_size
+    from harness.spec import known_size
 
     if args.get("preset") == known_size.PRESET:
         try:

@@ -74,3 +74,9 @@ def test_a_study_scene_names_it_as_a_preset(tmp_path: Path) -> None:
     assert not ensure_scene(scene, echo=lambda _: None)  # the same arguments: reused
     with pytest.raises(InputError, match="unknown argument"):
         validate_synth(StudyScene("bad", {"preset": known_size.PRESET, "seed": 0, "layout": "dynerf", "blobs": 3}))
+
+
+def test_the_command_line_writes_it_and_refuses_bad_arguments(tmp_path: Path) -> None:
+    args = ["--out", str(tmp_path / "cli"), "--seed", "1"] + [f"--set={k}={v}" for k, v in TINY.items()]
+    assert known_size.main(args) == 0 and (tmp_path / "cli" / "known_size.json").is_file()
+    assert known_size.main(["--out", str(tmp_path / "bad"), "--set=blobs=3"]) == 2

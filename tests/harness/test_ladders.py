@@ -120,10 +120,10 @@ def test_first_break_and_first_loss_for_climbing_and_descending_ladders() -> Non
     breaks = ladder_breaks.first_breaks(ladder_breaks.ladder_table(_frame(RUNS), SCENES)).set_index(["ladder", "variant"])
     assert breaks.loc[("lr_scale", "ftgspp")].first_break == 3.0  # the colour collapse
     assert breaks.loc[("lr_scale", "baseline")].first_break == 30.0
-    assert breaks.loc[("lr_scale", "baseline")].first_loss == 10.0
+    assert math.isnan(breaks.loc[("lr_scale", "baseline")].first_loss)  # 25.2 and 30.1 at x10: not settled
     assert breaks.loc[("cameras", "ftgspp")].text == "cameras 4 (4 cameras)"
     assert breaks.loc[("cameras", "baseline")].text == "none up to cameras 3"
-    assert breaks.loc[("cameras", "baseline")].loss_text == "cameras 6 (6 cameras)"
+    assert breaks.loc[("cameras", "baseline")].loss_text == "cameras 4 (4 cameras)"  # one run at 6: no interval
 
 
 def test_changing_rungs_name_both_sides_of_each_change(table: pd.DataFrame) -> None:
@@ -149,7 +149,7 @@ def test_markdown_states_the_rule_the_rates_and_the_breaks() -> None:
     assert ladder_breaks.FAILURE_RULE in md
     assert ("| 30 | lr x30 | `baseline` | 2 | — ± — | — ± — | 1/2 (1–99 %) | 1/2 (1–99 %) | 0/2 (≤ 84 %) |"
             " 0/2 (≤ 84 %) |") in md
-    assert "`ftgspp` lr_scale 3 (lr x3)" in md and "`baseline` lr_scale 10 (lr x10)" in md
+    assert "`ftgspp` lr_scale 3 (lr x3)" in md and "`baseline` lr_scale 30 (lr x30)" in md
     assert "| `gate_only` | component | 1 | 24.00 ± — | 23.00 ± — |" in md
     assert "ftgspp_no_gate" not in md.split("### Component variants")[0]  # not a ladder row
     assert "have fewer than 5 runs" in md
@@ -192,3 +192,16 @@ def test_report_adds_the_section_only_when_cells_are_rungs(tmp_path: Path) -> No
         assert (out / "ladders.png").exists() == (study is laddered)
     assert section is not None and section.title == "Stability ladders"
     assert "| 10 | lr10 | `baseline` | 2 | 25.20 ± — | 24.20 ± — | 0/2 (≤ 84 %) | 1/2 (1–99 %) |" in section.md
+
+
+def test_a_loss_is_settled_only_when_its_welch_interval_clears_the_sesoi(table: pd.DataFrame) -> None:
+    from scipy import stats
+
+    r = table.loc[("cameras", "cams4", "baseline")]  # 28.5, 28.1 against the base cell's 30.0, 30.4
+    ci = stats.ttest_ind([28.5, 28.1], [30.0, 30.4], equal_var=False).confidence_interval(0.95)
+    assert r.loss_diff == pytest.approx(-1.9) and (r.loss_diff_low, r.loss_diff_high) == pytest.approx((ci.low, ci.high))
+    assert r.loss_settled == 1.0
+    noisy = table.loc[("lr_scale", "lr10", "baseline")]  # one run 5 dB down, one not: counted, not settled
+    assert noisy.n_quality == 1 and noisy.loss_settled == 0.0
+    assert math.isnan(table.loc[("cameras", "cams6", "baseline")].loss_settled)  # one run: no interval
+    assert math.isnan(table.loc[("cameras", "base", "baseline")].loss_settled)  # the base itself
