@@ -21,7 +21,11 @@ from typing import Iterator
 
 import torch
 
-MODEL_FILES = ("gaussians.pt", "color_correction.npy", "color_bias.npy")  # ftgspp.checkpoint's names
+from ftgspp.checkpoint import COLOR_BIAS, COLOR_MATRICES, GAUSSIANS
+
+# the parameters and the learned colour correction: what a trained run keeps (evaluation renders
+# without the colour correction, but a model shipped for its training views needs it)
+MODEL_FILES = (GAUSSIANS, COLOR_MATRICES, COLOR_BIAS)
 
 
 def cores() -> int:
