@@ -102,6 +102,18 @@ def size_sentence(root: Path) -> str:
         else:
             text += (f" On the scene of known size the budget finder does not saturate by {row.budget:,.0f} Gaussians"
                      f"{ratio}.")
+    searches = []
+    for page in sorted((root / "budget").glob("budget_*/budget.csv")):
+        found = _read(page)
+        if page.parent.name == KNOWN_SIZE.parent.name or "chosen" not in found or not found.chosen.any():
+            continue
+        row = found[found.chosen].iloc[0]
+        scene = page.parent.name.removeprefix("budget_")
+        searches.append(f"{scene} {row.budget:,.0f}" if bool(found.saturated.iloc[0])
+                        else f"{scene} ≥ {row.budget:,.0f} (no saturation)")
+    if searches:
+        text += (" `study budget` (FreeTimeGS, doubling while a doubling gains 0.1 dB, 3 seeds a budget): "
+                 + ", ".join(searches) + ".")
     return text.strip()
 
 
