@@ -13,7 +13,7 @@ spend Gaussians on anything but the blobs. A budget of ``k`` can in principle re
 frame exactly; ``reports/budget`` shows what the finder answers (reports/FINDINGS.md reads it).
 
 A study scene names it as a synthetic preset (``synth: {preset: known_size, k: 500}``; its
-arguments and their checks are ``harness.spec.known_size``, and ``run.scenes`` dispatches it here); ``study budget --preset known_size`` searches it. The true
+arguments and their checks are ``harness.spec.known_scene``, and ``run.scenes`` dispatches it here); ``study budget --preset known_size`` searches it. The true
 parameters are kept beside the videos in ``known_size.npz`` and described in
 ``known_size.json``. It lives in the harness, not in ``ftgspp.data.synthetic``: it is an
 instrument for checking the harness's budget answer, and it draws with the trainer's renderer
@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from ftgspp.errors import InputError
-from harness.spec.known_size import EYE_HEIGHT, PRESET, RIG_FIELDS, TARGET, KnownSizeConfig, resolve  # noqa: F401
+from harness.spec.known_scene import EYE_HEIGHT, PRESET, RIG_FIELDS, TARGET, KnownSizeConfig, resolve  # noqa: F401
 
 
 def draw_gaussians(cfg: KnownSizeConfig) -> dict[str, np.ndarray]:

@@ -10,7 +10,7 @@ import json
 import shlex
 from dataclasses import dataclass, field
 
-from harness.spec.known_size import PRESET as KNOWN_SIZE
+from harness.spec.known_scene import PRESET as KNOWN_SIZE
 from harness.spec.study_files import require
 from harness.spec.study_schema import StudyScene, StudySpec, plural
 

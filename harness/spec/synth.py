@@ -14,11 +14,11 @@ def validate_synth(scene: StudyScene) -> None:
 
     args = dict(scene.synth)
     where = f"scene '{scene.name}' synth"
-    from harness.spec import known_size
+    from harness.spec import known_scene
 
-    if args.get("preset") == known_size.PRESET:
+    if args.get("preset") == known_scene.PRESET:
         try:
-            known_size.resolve({k: v for k, v in args.items() if k != "preset"})
+            known_scene.resolve({k: v for k, v in args.items() if k != "preset"})
         except (InputError, TypeError) as err:
             raise InputError(where, str(err)) from None
         return
