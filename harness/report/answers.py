@@ -109,8 +109,9 @@ def size_sentence(root: Path) -> str:
             continue
         row = found[found.chosen].iloc[0]
         scene = page.parent.name.removeprefix("budget_")
-        searches.append(f"{scene} {row.budget:,.0f}" if bool(found.saturated.iloc[0])
-                        else f"{scene} ≥ {row.budget:,.0f} (no saturation)")
+        settled = "settled" in found and bool(found.settled.iloc[0])
+        searches.append(f"{scene} ≥ {row.budget:,.0f} (no saturation)" if not bool(found.saturated.iloc[0])
+                        else f"{scene} {row.budget:,.0f}" + ("" if settled else " (not settled)"))
     if searches:
         text += (" `study budget` (FreeTimeGS, doubling while a doubling gains 0.1 dB, 3 seeds a budget): "
                  + ", ".join(searches) + ".")

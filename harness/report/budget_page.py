@@ -73,7 +73,8 @@ def write(found: BudgetSearch, out: Path, true_size: int | None = None, command:
 
     out.mkdir(parents=True, exist_ok=True)
     table = frame(found)
-    table.assign(chosen=table.budget == found.chosen, saturated=found.saturated,
+    settled = found.saturated and found.chosen != found.best and found.gap().settled_below(found.threshold)
+    table.assign(chosen=table.budget == found.chosen, saturated=found.saturated, settled=settled,
                  true_size=true_size or float("nan")).to_csv(out / "budget.csv", index=False)
     fig, ax = plt.subplots(figsize=(6.0, 4.0))
     ax.errorbar(table.budget, table.psnr_mean, yerr=table.psnr_std.fillna(0), marker="o", capsize=3)

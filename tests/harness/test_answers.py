@@ -74,9 +74,10 @@ def test_an_unsaturated_known_size_search_says_so(tmp_path: Path) -> None:
 
 def test_preset_budget_searches_join_the_size_sentence(tmp_path: Path) -> None:
     _write(tmp_path, "budget/budget_plain/budget.csv", [
-        {"budget": b, "chosen": b == 7500, "saturated": True, "true_size": float("nan")} for b in (5000, 7500, 10000)])
+        {"budget": b, "chosen": b == 7500, "saturated": True, "settled": False, "true_size": float("nan")}
+        for b in (5000, 7500, 10000)])
     _write(tmp_path, "budget/budget_static/budget.csv", [
         {"budget": b, "chosen": b == 40000, "saturated": False, "true_size": float("nan")} for b in (5000, 40000)])
     s = size_sentence(tmp_path)
     assert s.endswith("`study budget` (FreeTimeGS, doubling while a doubling gains 0.1 dB, 3 seeds a budget):"
-                      " plain 7,500, static ≥ 40,000 (no saturation).")
+                      " plain 7,500 (not settled), static ≥ 40,000 (no saturation).")
