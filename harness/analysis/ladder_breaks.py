@@ -163,12 +163,9 @@ def _references(df: pd.DataFrame, ladder: Ladder) -> dict[str, float]:
     component variant without base-cell runs borrows the reference of the variant its name
     extends (``ftgspp_no_gate`` -> ``ftgspp``; the longest such prefix)."""
     base = df[(df.scene == ladder.base.scene.name) & (df.status == "FINISHED")]
-    refs = {str(v): float(g.mean()) for v, g in base.groupby("variant", sort=False)[METRIC]}
-    for v in dict.fromkeys(str(x) for x in df.variant):
-        parents = [k for k in refs if v.startswith(k + "_")]
-        if v not in refs and parents:
-            refs[v] = refs[max(parents, key=len)]
-    return refs
+    own = {str(v): float(g.mean()) for v, g in base.groupby("variant", sort=False)[METRIC]}
+    named = {v: _reference_variant(v, set(own)) for v in dict.fromkeys(str(x) for x in df.variant)}
+    return {v: own[ref] for v, ref in named.items() if ref}
 
 
 def classify(df: pd.DataFrame, ladder: Ladder, baseline: str = "baseline") -> pd.DataFrame:

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from harness.report.speed_accuracy_text import unsaturated
+
 REFERENCE_CELL = (5000.0, 3000.0)  # the quick profile's budget and iterations
 KNOWN_SIZE = Path("budget") / "budget_known_size" / "budget.csv"
 
@@ -65,7 +67,7 @@ def speed_sentence(root: Path) -> str:
 def _needs(r: pd.Series) -> str:
     """``static 5,000``; ``≥ 20,000 (no saturation)`` when the largest budget is the best;
     ``(its best: more scores lower)`` when a smaller budget is the best outright."""
-    if r.variant == r.best_variant and r.budget >= r.largest_budget:
+    if unsaturated(r):
         return f"{r.scene_label} ≥ {r.budget:,.0f} (no saturation)"
     if r.variant == r.best_variant:
         return f"{r.scene_label} {r.budget:,.0f} (its best: more Gaussians score lower)"

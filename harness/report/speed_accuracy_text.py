@@ -29,7 +29,7 @@ def _gap(row: pd.Series) -> str:
 
 
 def _settled(row: pd.Series, tol_db: float) -> str:
-    if _unsaturated(row):
+    if unsaturated(row):
         return "— (the largest budget tried: no saturation within the grid)"
     if row.variant == row.best_variant:
         return "— (the best itself)"
@@ -38,7 +38,7 @@ def _settled(row: pd.Series, tol_db: float) -> str:
     return f"no: the CI reaches {tol_db:g} dB" if row.gap_ci_includes_tol else "yes"
 
 
-def _unsaturated(row: pd.Series) -> bool:
+def unsaturated(row: pd.Series) -> bool:
     """The chosen budget is the best and the largest tried: the grid shows no saturation."""
     return bool(row.variant == row.best_variant and row.budget >= row.largest_budget)
 
@@ -57,7 +57,7 @@ def pair_sentences(chosen: pd.DataFrame) -> list[str]:
     out = []
     for (_, a), (_, b) in combinations(chosen.iterrows(), 2):
         small, large = sorted((a, b), key=lambda r: r.budget)
-        open_ = [r for r in (small, large) if _unsaturated(r)]
+        open_ = [r for r in (small, large) if unsaturated(r)]
         if len(open_) == 2:
             out.append(f"Neither {small.scene_label} nor {large.scene_label} saturates within the grid (each is"
                        " best at its largest budget).")
