@@ -225,20 +225,19 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
         chosen_per_scene = speed_accuracy_scenes.smallest_per_scene(sa, data.df)
         sa.to_csv(out / "speed_accuracy.csv", index=False)
         chosen_per_scene.to_csv(out / "speed_accuracy_smallest.csv", index=False)
-        if "psnr_cc" in data.df and data.df["psnr_cc"].notna().any():  # the model's own need (report.answers)
-            aligned = speed_accuracy_scenes.per_scene(data.df, "psnr_cc")
-            speed_accuracy_scenes.smallest_per_scene(aligned, data.df, metric="psnr_cc").to_csv(
+        logged = [m for m in ("psnr", "psnr_cc", "lpips_alex") if m in data.df and data.df[m].notna().any()]
+        per = {m: sa if m == "psnr" else speed_accuracy_scenes.per_scene(data.df, m) for m in logged}
+        if "psnr_cc" in per:  # the model's own need (report.answers)
+            speed_accuracy_scenes.smallest_per_scene(per["psnr_cc"], data.df, metric="psnr_cc").to_csv(
                 out / "speed_accuracy_smallest_psnr_cc.csv", index=False)
         first = speed_accuracy_scenes.method_of(data.baseline)
         if not (cmp := speed_accuracy_scenes.method_comparison(data.df, first)).empty:
             cmp.to_csv(out / "method_comparison.csv", index=False)
-        for metric, file in (("psnr", "speed_accuracy.png"), ("psnr_cc", "speed_accuracy_psnr_cc.png"),
-                             ("lpips_alex", "speed_accuracy_lpips_alex.png")):
-            if metric not in data.df or not data.df[metric].notna().any():
-                continue
-            cells = sa if metric == "psnr" else speed_accuracy_scenes.per_scene(data.df, metric)
+        files = {"psnr": "speed_accuracy.png", "psnr_cc": "speed_accuracy_psnr_cc.png",
+                 "lpips_alex": "speed_accuracy_lpips_alex.png"}
+        for metric, cells in per.items():
             p = pareto_plots.pareto_plot(cells, metric, f"{name}: {tables.pretty(metric)} against cost, per scene",
-                                         out / file)
+                                         out / files[metric])
             made.append((f"{tables.pretty(metric)} against training time, render speed and model size per scene,"
                          " each method's Pareto front dashed", p))
     elif "speed_accuracy" in data.study.plots:
