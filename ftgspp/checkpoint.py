@@ -25,7 +25,8 @@ import torch
 from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import TrainConfig, train_config_from_dict
 from ftgspp.errors import InputError
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods import method_class
+from ftgspp.methods.base import DynamicGaussians
 
 CONFIG = "config.json"
 GAUSSIANS = "gaussians.pt"
@@ -38,7 +39,7 @@ def save_config(cfg: TrainConfig, out_dir: Path) -> None:
     (out_dir / CONFIG).write_text(json.dumps(asdict(cfg), indent=2))
 
 
-def save_model(model: FreeTimeGaussians, cc: ColorCorrection | None, out_dir: Path) -> None:
+def save_model(model: DynamicGaussians, cc: ColorCorrection | None, out_dir: Path) -> None:
     """Write the model's parameters and, when there is one, the learned colour correction."""
     torch.save({k: v.detach().cpu() for k, v in model.params.items()}, out_dir / GAUSSIANS)
     if cc is not None:
@@ -46,8 +47,9 @@ def save_model(model: FreeTimeGaussians, cc: ColorCorrection | None, out_dir: Pa
         np.save(out_dir / COLOR_BIAS, cc.biases().cpu().numpy())
 
 
-def load_run(run_dir: str | Path, device: str = "cpu") -> tuple[FreeTimeGaussians, TrainConfig]:
-    """The model (on ``device``) and config of a finished run; ``InputError`` if either is missing."""
+def load_run(run_dir: str | Path, device: str = "cpu") -> tuple[DynamicGaussians, TrainConfig]:
+    """The model (on ``device``, of the run's method) and config of a finished run; ``InputError``
+    if either is missing."""
     run = Path(run_dir)
     for name in (CONFIG, GAUSSIANS):
         if not (run / name).is_file():
@@ -57,4 +59,4 @@ def load_run(run_dir: str | Path, device: str = "cpu") -> tuple[FreeTimeGaussian
     except (json.JSONDecodeError, TypeError) as err:
         raise InputError(run / CONFIG, f"unreadable: {err}") from err
     params = torch.load(run / GAUSSIANS, map_location=device, weights_only=True)
-    return FreeTimeGaussians(params, cfg.model), cfg
+    return method_class(cfg.model.method)(params, cfg.model), cfg

@@ -27,9 +27,15 @@ class DataConfig:
 
 @dataclass
 class ModelConfig:
-    """Per-Gaussian representation (docs/design.md §4)."""
+    """Per-Gaussian representation (docs/design.md §4): a method and its options.
+
+    ``method`` picks the class (``ftgspp.methods``: ``freetime`` for FreeTimeGS and FreeTimeGS++,
+    ``stg`` for Spacetime Gaussians, or ``module:Class``); ``name`` labels the configuration
+    (``conf/model/<name>.yaml``). The temporal-scale bound and the gate are FreeTimeGS++'s;
+    colour correction is the trainer's and applies to every method."""
 
     name: str = "ftgs"
+    method: str = "freetime"
     sh_degree: int = 3
     max_duration: float | None = None  # None: s = exp(d); finite: s = max_duration/6 * sigmoid(d)
     gate: bool = False
@@ -106,6 +112,12 @@ class LearningRates:
     times: float = 1.6e-4
     velocities: float = 1.6e-3
     gates: float = 1e-3
+    # Spacetime Gaussians (lite), the public code's rates: temporal centre and log temporal scale,
+    # cubic motion (× scene extent: its position rate × 0.5 × 3.5) and rotation speed
+    trbf_center: float = 1e-4
+    trbf_scale: float = 0.03
+    motion: float = 2.8e-4
+    omega: float = 1e-4
     cc: float = 1e-3
     means_final_ratio: float = 0.01  # exponential decay of means and velocity over training
     scale: float = 1.0  # global multiplier (stability studies)

@@ -27,7 +27,7 @@ from ftgspp.data.scene import Scene
 from ftgspp.errors import InputError
 from ftgspp.image_metrics import METRICS, available_metrics, evaluate_images
 from ftgspp.lpips.nets import NETS
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods.base import DynamicGaussians
 from ftgspp.view import render_view
 
 log = logging.getLogger("ftgspp.evaluate")
@@ -90,7 +90,7 @@ class HeldOutRenders:
     and time, and these settings). Kept only while all of them fit in ``max_bytes``; else each
     call renders. The model must not change while this object is in use."""
 
-    def __init__(self, model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig, max_bytes: int = 256 * 2**20):
+    def __init__(self, model: DynamicGaussians, scene: Scene, cfg: TrainConfig, max_bytes: int = 256 * 2**20):
         self.model, self.scene = model, scene
         self.sh_degree, self.backend = cfg.model.sh_degree, cfg.backend
         self.background = torch.tensor(cfg.background, dtype=torch.float32, device=model.params["means"].device)
@@ -98,14 +98,14 @@ class HeldOutRenders:
         self.keep = size <= max_bytes
         self._done: dict[tuple[int, int], torch.Tensor] = {}
 
-    def matches(self, model: FreeTimeGaussians, scene: Scene, sh_degree: int, background: torch.Tensor,
+    def matches(self, model: DynamicGaussians, scene: Scene, sh_degree: int, background: torch.Tensor,
                 backend: str) -> bool:
         """Whether renders with these settings are the ones this object holds."""
         return (model is self.model and scene is self.scene and sh_degree == self.sh_degree
                 and backend == self.backend and torch.equal(background, self.background))
 
     @classmethod
-    def of(cls, model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig,
+    def of(cls, model: DynamicGaussians, scene: Scene, cfg: TrainConfig,
            renders: HeldOutRenders | None) -> HeldOutRenders:
         """``renders`` when given (``ValueError`` unless they are of this model, scene and
         ``cfg``'s settings), else a new object."""
@@ -135,7 +135,7 @@ CORE_METRICS = [name for name, m in METRICS.items() if m.lpips_net is None]
 
 @torch.no_grad()
 def evaluate(
-    model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig, out_dir: Path, n_saved: int = 3,
+    model: DynamicGaussians, scene: Scene, cfg: TrainConfig, out_dir: Path, n_saved: int = 3,
     renders: HeldOutRenders | None = None,
 ) -> tuple[dict[str, float], list[Path]]:
     """PSNR, SSIM and DSSIM averaged over all held-out (camera, frame) pairs, plus a few saved
@@ -148,7 +148,7 @@ def evaluate(
 
 
 @torch.no_grad()
-def evaluate_lpips(model: FreeTimeGaussians, scene: Scene, cfg: TrainConfig,
+def evaluate_lpips(model: DynamicGaussians, scene: Scene, cfg: TrainConfig,
                    renders: HeldOutRenders | None = None) -> dict[str, float]:
     """LPIPS (the networks in ``cfg.eval_lpips``, both input conventions) over the held-out frames.
 

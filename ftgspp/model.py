@@ -9,58 +9,34 @@ a gate logit g̃ (docs/design.md §4). At time t it is an ordinary 3D Gaussian w
     a(t)  = exp(−½ ((t − μt) / s)²),   g = sigmoid(γ g̃),
     s     = max_duration / 6 · sigmoid(d)  (finite max_duration)  or  exp(d).
 
-Every per-Gaussian tensor has leading dimension N and lives in ``params``.
+Every per-Gaussian tensor has leading dimension N and lives in ``params``. The class is the
+first implementation of the method interface (``ftgspp/methods/base.py``); ``model.method=freetime``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from functools import cached_property
+from typing import ClassVar, Iterator
 
 import numpy as np
 import torch
-from torch import nn
 
-from ftgspp.config import InitConfig, ModelConfig
+from ftgspp.config import InitConfig, LossConfig, ModelConfig
+from ftgspp.losses import gate_penalty, opacity_4d, scale_penalty
+from ftgspp.methods.base import DynamicGaussians, GaussiansAt
+
+__all__ = ["FreeTimeGaussians", "GaussiansAt", "SH_C0", "duration_to_param"]
 
 SH_C0 = 0.28209479177387814
 
 
-@dataclass
-class GaussiansAt:
-    """The 3D Gaussians of a model evaluated at one time.
+class FreeTimeGaussians(DynamicGaussians):
+    """Per-Gaussian parameters and their activations: FreeTimeGS, and FreeTimeGS++ with the
+    bounded temporal scale and the gate (``ModelConfig``); the first ``DynamicGaussians``."""
 
-    ``scales`` (activated) and ``sh`` (DC and rest concatenated) are computed from the
-    parameters on first access, so that renderers that do not need them pay nothing.
-    """
-
-    means: torch.Tensor  # [N, 3]
-    quats: torch.Tensor  # [N, 4]
-    opacities: torch.Tensor  # [N] sigmoid(o) * phi(t)
-    temporal: torch.Tensor  # [N] phi(t)
-    log_scales: torch.Tensor  # [N, 3]
-    sh0: torch.Tensor  # [N, 1, 3]
-    shN: torch.Tensor  # [N, K - 1, 3]
-
-    @cached_property
-    def scales(self) -> torch.Tensor:
-        """Activated scales exp(S), ``[N, 3]``."""
-        return torch.exp(self.log_scales)
-
-    @cached_property
-    def sh(self) -> torch.Tensor:
-        """SH coefficients, ``[N, K, 3]``."""
-        return torch.cat([self.sh0, self.shN], dim=1)
-
-
-class FreeTimeGaussians(nn.Module):
-    """Per-Gaussian parameters and their activations."""
-
-    def __init__(self, params: dict[str, torch.Tensor], cfg: ModelConfig) -> None:
-        super().__init__()
-        self.cfg = cfg
-        self.params = nn.ParameterDict({k: nn.Parameter(v.contiguous()) for k, v in params.items()})
+    EXTENT_SCALED: ClassVar[tuple[str, ...]] = ("means", "velocities")
+    DECAYING: ClassVar[tuple[str, ...]] = ("means", "velocities")
+    FUSED_CPU: ClassVar[bool] = True  # ftgspp.render.prepare evaluates exactly this model
 
     # --- construction -------------------------------------------------------------------
     @classmethod
@@ -95,9 +71,6 @@ class FreeTimeGaussians(nn.Module):
         }
         return cls(params, cfg)
 
-    def __len__(self) -> int:
-        return self.params["means"].shape[0]
-
     # --- activations --------------------------------------------------------------------
     def temporal_scale(self) -> torch.Tensor:
         """Temporal standard deviation s in seconds, ``[N]``."""
@@ -120,19 +93,27 @@ class FreeTimeGaussians(nn.Module):
         g = self.gate()
         return g + (1.0 - g) * a
 
-    @torch.no_grad()
-    def peak_opacity(self, t0: float, t1: float) -> torch.Tensor:
-        """The largest opacity o·φ(t) each Gaussian reaches for t in ``[t0, t1]``, ``[N]``: φ peaks
-        at the Gaussian's own time μt (the gate only lifts it), so at μt clipped to the window."""
-        t = self.params["times"].detach().clamp(t0, t1)
-        return self.base_opacity() * self.temporal_opacity(t)
+    def temporal_centres(self) -> torch.Tensor:
+        """μt, ``[N]``."""
+        return self.params["times"]
 
-    def base_opacity(self) -> torch.Tensor:
-        """sigmoid(o), ``[N]``."""
-        return torch.sigmoid(self.params["opacities"])
+    def velocities_at(self, t: float) -> torch.Tensor:
+        """v, the same at every time, ``[N, 3]``."""
+        return self.params["velocities"]
 
-    def at_time(self, t: float) -> GaussiansAt:
-        """The 3D Gaussians at time ``t`` (seconds)."""
+    def frozen(self) -> set[str]:
+        """The gate logits when the gate is switched off."""
+        return set() if self.cfg.gate else {"gates"}
+
+    def regularizers(self, g: GaussiansAt, weights: LossConfig) -> Iterator[tuple[str, float, torch.Tensor]]:
+        """FreeTimeGS's 4D opacity and scale terms, and with the gate its penalty (docs/design.md §4)."""
+        yield "opacity", weights.opacity_reg, opacity_4d(self.base_opacity(), g.temporal)
+        yield "scale", weights.scale_reg, scale_penalty(self.params["scales"])
+        if self.cfg.gate:
+            yield "gate", weights.gate_reg, gate_penalty(self.gate())
+
+    def at_time(self, t: float | torch.Tensor) -> GaussiansAt:
+        """The 3D Gaussians at time ``t`` (seconds; a number or one time per Gaussian)."""
         p = self.params
         phi = self.temporal_opacity(t)
         means = p["means"] + p["velocities"] * (t - p["times"])[:, None]

@@ -25,14 +25,14 @@ import torch
 from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
+from ftgspp.errors import InputError
 from ftgspp.init import initialize
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods import method_class
+from ftgspp.methods.base import DynamicGaussians
 from ftgspp.strategy import Relocator
 
 log = logging.getLogger("ftgspp.train")
 
-# learning-rate keys of LearningRates that are multiplied by the scene extent and decay
-EXTENT_SCALED = ("means", "velocities")
 CHECKPOINT_FORMAT = 2  # 1: one Adam per group and LR schedulers (before the state object)
 
 
@@ -45,36 +45,44 @@ def scene_extent(scene: Scene) -> float:
     return float(1.1 * np.linalg.norm(centres - centres.mean(0), axis=1).max())
 
 
-def build_model(cfg: TrainConfig, scene: Scene, device: torch.device, stats: dict | None = None) -> FreeTimeGaussians:
-    """Initialise the Gaussians from the scene (seeded by ``init.fixed_seed`` or the run seed);
+def build_model(cfg: TrainConfig, scene: Scene, device: torch.device, stats: dict | None = None) -> DynamicGaussians:
+    """Initialise the method's Gaussians (``model.method``) from the scene's initial point set
+    (seeded by ``init.fixed_seed`` or the run seed);
     ``stats`` (when given) receives what the initial point set is made of (``InitPoints.stats``)."""
     init_seed = cfg.seed if cfg.init.fixed_seed is None else cfg.init.fixed_seed
     pts = initialize(scene, cfg.init, cfg.budget, seed=init_seed)
     if stats is not None:
         stats.update(pts.stats)
-    return FreeTimeGaussians.from_points(
+    return method_class(cfg.model.method).from_points(
         pts.means, pts.colors, pts.times, pts.velocities, pts.spacing, cfg.model, cfg.init, device
     )
 
 
 def make_optimizer(
-    model: FreeTimeGaussians, cc: ColorCorrection | None, cfg: TrainConfig, extent: float
+    model: DynamicGaussians, cc: ColorCorrection | None, cfg: TrainConfig, extent: float
 ) -> torch.optim.Adam:
     """One Adam over every parameter group (``group["name"]`` says which), fused on CPU and CUDA.
 
-    Learning rates are ``lr.<name> × lr.scale`` (× the scene extent for means and
-    velocities); ``group["decays"]`` marks the groups whose rate decays over training.
+    Learning rates are ``lr.<key> × lr.scale``, the key being the parameter's name or the one the
+    method maps it to (``LR_KEYS``), × the scene extent for the method's ``EXTENT_SCALED``
+    parameters (FreeTimeGS: means and velocities); ``group["decays"]`` marks the groups whose
+    rate decays over training (``DECAYING``). The method's ``frozen()`` parameters are left out.
     The colour correction's group gets gradients only once it is switched on; Adam skips
     parameters without a gradient, so its moments start then.
     """
     lrs = asdict(cfg.lr)
     groups = []
+    frozen = model.frozen()
     for name, p in model.params.items():
-        if name == "gates" and not cfg.model.gate:
+        if name in frozen:
             p.requires_grad_(False)
             continue
-        lr = lrs[name] * cfg.lr.scale * (extent if name in EXTENT_SCALED else 1.0)
-        groups.append({"params": [p], "lr": lr, "initial_lr": lr, "name": name, "decays": name in EXTENT_SCALED})
+        key = model.LR_KEYS.get(name, name)
+        if key not in lrs:
+            raise InputError("lr", f"no learning rate for the parameter '{name}' of {type(model).__name__}"
+                             f" (LearningRates has no '{key}'; map it in LR_KEYS)")
+        lr = lrs[key] * cfg.lr.scale * (extent if name in model.EXTENT_SCALED else 1.0)
+        groups.append({"params": [p], "lr": lr, "initial_lr": lr, "name": name, "decays": name in model.DECAYING})
     if cc is not None:
         lr = cfg.lr.cc * (cfg.lr.scale if cfg.lr.cc_scaled else 1.0)
         groups.append({"params": list(cc.parameters()), "lr": lr, "initial_lr": lr, "name": "cc", "decays": False})
@@ -116,7 +124,7 @@ class FrameSampler:
 class TrainState:
     """Everything a run mutates; ``step`` iterations done after ``elapsed`` training seconds."""
 
-    model: FreeTimeGaussians
+    model: DynamicGaussians
     cc: ColorCorrection | None
     optimizer: torch.optim.Adam
     relocator: Relocator

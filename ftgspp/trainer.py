@@ -1,7 +1,7 @@
-"""``train(cfg, scene, tracker)``: the FreeTimeGS(++) optimisation loop.
+"""``train(cfg, scene, tracker)``: the optimisation loop of every method (FreeTimeGS(++), STGS, yours).
 
 One iteration: pick a (training camera, frame) pair from a seeded shuffle, evaluate the
-Gaussians at that frame's time, render, compute the loss of docs/design.md §4
+method's Gaussians (``ftgspp/methods``) at that frame's time, render, compute the loss of docs/design.md §4
 (``loss_terms``), backpropagate, take one Adam step over every parameter group, and every
 ``refine_every`` iterations relocate dead Gaussians. Everything the loop mutates lives in
 one ``TrainState`` (``ftgspp/train_state.py``); checkpoints go to
@@ -35,8 +35,9 @@ from ftgspp.diagnostics.diagnose import run_diagnostics
 from ftgspp.errors import InputError
 from ftgspp.evaluate import HeldOutRenders, check_eval_lpips, evaluate, evaluate_lpips
 from ftgspp.image_metrics import lpips_distance
-from ftgspp.losses import gate_penalty, logged_photometric, opacity_4d, photometric, scale_penalty
-from ftgspp.model import FreeTimeGaussians, GaussiansAt
+from ftgspp.losses import logged_photometric, photometric
+from ftgspp.methods import method_class
+from ftgspp.methods.base import DynamicGaussians, GaussiansAt
 from ftgspp.optim import adam_step, clear_grads, plain_fused_adam
 from ftgspp.render import BACKENDS
 from ftgspp.runtime import enter, needs_child, train_in_child
@@ -66,7 +67,7 @@ def _peak_rss_mb() -> float:
 
 def loss_terms(
     cfg: TrainConfig,
-    model: FreeTimeGaussians,
+    model: DynamicGaussians,
     g: GaussiansAt,
     image: torch.Tensor,  # [H, W, 3] render (after colour correction when it is on)
     gt: torch.Tensor,  # [H, W, 3]
@@ -78,8 +79,10 @@ def loss_terms(
     With the weights of ``cfg.loss`` (λ = ``ssim``):
 
     total = photometric [(1 − λ) L1 + λ (1 − SSIM)] + lpips · LPIPS-alex
-            + opacity_reg · mean(σ(o) φ(t).detach()) + scale_reg · mean(exp S)
-            [+ gate_reg · mean(1 − g)] [+ cc_reg · Σ(‖ΔM‖² + ‖b‖²)]
+            + the method's regularizers [+ cc_reg · Σ(‖ΔM‖² + ‖b‖²)]
+
+    FreeTimeGS's regularizers (``FreeTimeGaussians.regularizers``) are opacity_reg ·
+    mean(σ(o) φ(t).detach()) + scale_reg · mean(exp S) [+ gate_reg · mean(1 − g)].
     """
     w = cfg.loss
     photo, l1 = photometric(image, gt, w.ssim)
@@ -88,12 +91,9 @@ def loss_terms(
     if lpips_net is not None:  # LPIPS with the correct [-1, 1] inputs
         terms["lpips"] = lpips_distance(lpips_net, image.clamp(0, 1), gt)
         total = total + w.lpips * terms["lpips"]
-    terms["opacity"] = opacity_4d(model.base_opacity(), g.temporal)
-    terms["scale"] = scale_penalty(model.params["scales"])
-    total = total + w.opacity_reg * terms["opacity"] + w.scale_reg * terms["scale"]
-    if cfg.model.gate:
-        terms["gate"] = gate_penalty(model.gate())
-        total = total + w.gate_reg * terms["gate"]
+    for name, weight, value in list(model.regularizers(g, w)):  # every term, then their weighted sum
+        terms[name] = value
+        total = total + weight * value
     if cc is not None:
         terms["cc"] = cc.regularizer()
         total = total + w.cc_reg * terms["cc"]
@@ -110,6 +110,7 @@ def check_config(cfg: TrainConfig) -> None:
     """Every check of ``cfg`` that needs no scene and writes nothing; one-line ``InputError``."""
     check_eval_lpips(cfg.eval_lpips)
     check_dispatch(cfg)
+    method_class(cfg.model.method)  # unknown or unimportable method
     if cfg.determinism not in MODES:
         raise InputError("determinism", f"unknown mode '{cfg.determinism}' (choose from {', '.join(MODES)})")
     Relocator(cfg.strategy)  # unknown relocation policy or clamp rule

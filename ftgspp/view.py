@@ -1,10 +1,11 @@
-"""Render a ``FreeTimeGaussians`` model from a ``Camera`` at a time t.
+"""Render a model (any ``DynamicGaussians`` method) from a ``Camera`` at a time t.
 
-Glue between the model (4D parameters), the SH colour model and the rasterizer backends.
-On the ``cpu`` backend, time evaluation, SH colour and projection run as one fused Numba
-node (``render.prepare``); every other backend composes the PyTorch modules
-(``model.at_time``, ``render.sh.eval_sh``, ``render.project``), and ``reference`` stays the
-pure-autograd oracle of both.
+Glue between the model (4D parameters), the colour model and the rasterizer backends. For
+FreeTimeGS on the ``cpu`` backend, time evaluation, SH colour and projection run as one
+fused Numba node (``render.prepare``, the methods whose ``FUSED_CPU`` is set); every other
+method and backend composes the PyTorch modules (``model.at_time``, ``render.sh.eval_sh``
+unless the method gives RGB, ``render.project``), and ``reference`` stays the pure-autograd
+oracle of both.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import torch
 
 from ftgspp.data.scene import Camera
-from ftgspp.model import FreeTimeGaussians, GaussiansAt
+from ftgspp.methods.base import DynamicGaussians, GaussiansAt
 from ftgspp.render import RenderOutput, render, resolve_backend
 from ftgspp.render.sh import eval_sh
 
@@ -24,7 +25,7 @@ def camera_tensors(cam: Camera, device: torch.device | str) -> tuple[torch.Tenso
 
 
 def render_view(
-    model: FreeTimeGaussians,
+    model: DynamicGaussians,
     cam: Camera,
     t: float,
     sh_degree: int,
@@ -39,9 +40,11 @@ def render_view(
     means = model.params["means"]
     viewmat, K, centre = camera_tensors(cam, means.device)
     name = resolve_backend(backend, means.device)
-    if name == "cpu" and means.device.type == "cpu" and means.dtype == torch.float32:
+    if model.FUSED_CPU and name == "cpu" and means.device.type == "cpu" and means.dtype == torch.float32:
         return _render_view_fused(model, cam, t, sh_degree, background, colors, viewmat, K, centre)
     g = model.at_time(t)
+    if colors is None and g.colors is not None:  # the method's own view-independent RGB
+        colors = g.colors
     if colors is None:
         dirs = g.means - centre
         dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
@@ -52,7 +55,7 @@ def render_view(
 
 
 def _render_view_fused(
-    model: FreeTimeGaussians,
+    model: DynamicGaussians,
     cam: Camera,
     t: float,
     sh_degree: int,

@@ -56,12 +56,12 @@ from ftgspp.diagnostics.motion import (
 )
 from ftgspp.errors import InputError
 from ftgspp.evaluate import HeldOutRenders
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods.base import DynamicGaussians
 
 log = logging.getLogger("ftgspp.diagnostics")
 
 
-def ground_truth_scores(model: FreeTimeGaussians, scene: Scene, cam: int, gt: GroundTruth, short: np.ndarray,
+def ground_truth_scores(model: DynamicGaussians, scene: Scene, cam: int, gt: GroundTruth, short: np.ndarray,
                         frames: np.ndarray, backend: str = "auto") -> dict[str, float]:
     """Partition, role-switch and flicker scores of ``model`` in camera ``cam`` over every
     loaded frame; ``short [N]`` marks the short-lived Gaussians, ``frames [F, H, W, 3]`` the
@@ -135,7 +135,7 @@ class DiagnosticsResult:
 
 
 def run_diagnostics(
-    model: FreeTimeGaussians,
+    model: DynamicGaussians,
     scene: Scene,
     cfg: TrainConfig,
     out_dir: str | Path,

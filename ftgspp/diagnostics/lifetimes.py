@@ -23,17 +23,17 @@ import torch
 
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.diagnostics.motion import GroundTruth
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods.base import DynamicGaussians
 from ftgspp.view import render_view
 
 
-def effective_lifetimes(model: FreeTimeGaussians, theta: float) -> torch.Tensor:
+def effective_lifetimes(model: DynamicGaussians, theta: float) -> torch.Tensor:
     """Effective lifetime Δt(θ) in seconds, ``[N]`` (``inf`` for gated Gaussians that never fade)."""
     with torch.no_grad():
         return model.lifetimes(theta)
 
 
-def lifetime_fractions(model: FreeTimeGaussians, theta: float, duration: float) -> np.ndarray:
+def lifetime_fractions(model: DynamicGaussians, theta: float, duration: float) -> np.ndarray:
     """Δt(θ)/T for every Gaussian, ``[N]`` float64 (``inf`` where it never fades)."""
     return effective_lifetimes(model, theta).detach().cpu().double().numpy() / float(duration)
 
@@ -45,13 +45,12 @@ def lifetime_histogram(fractions: np.ndarray, bins: int = 40, max_fraction: floa
     return np.histogram(np.minimum(fractions, max_fraction), bins=bins, range=(0.0, max_fraction))
 
 
-def subset_model(model: FreeTimeGaussians, keep: np.ndarray | torch.Tensor) -> FreeTimeGaussians:
+def subset_model(model: DynamicGaussians, keep: np.ndarray | torch.Tensor) -> DynamicGaussians:
     """A model with only the Gaussians where ``keep [N]`` is True (parameters copied)."""
-    keep = torch.as_tensor(keep, dtype=torch.bool, device=model.params["means"].device)
-    return FreeTimeGaussians({k: v.detach()[keep] for k, v in model.params.items()}, model.cfg)
+    return model.subset(torch.as_tensor(keep, dtype=torch.bool, device=model.params["means"].device))
 
 
-def lifetime_vs_objects(model: FreeTimeGaussians, scene: Scene, gts: dict[int, GroundTruth],
+def lifetime_vs_objects(model: DynamicGaussians, scene: Scene, gts: dict[int, GroundTruth],
                         fractions: np.ndarray, split: float, depth_tol: float = 0.05) -> dict[str, float]:
     """Where the long- and short-lived Gaussians lie, from ground-truth object masks.
 
@@ -60,10 +59,13 @@ def lifetime_vs_objects(model: FreeTimeGaussians, scene: Scene, gts: dict[int, G
     within ``depth_tol`` (relative) of the ground-truth depth there (i.e. on the visible
     surface); it is dynamic if the object mask is > 0 there.
     """
-    p = {k: v.detach().cpu().double().numpy() for k, v in model.params.items()}
-    times = scene.times
-    frame = np.abs(np.clip(p["times"], times[0], times[-1])[:, None] - times[None]).argmin(axis=1)  # [N]
-    mu = p["means"] + p["velocities"] * (times[frame] - p["times"])[:, None]
+    with torch.no_grad():  # in float64, each Gaussian at the frame nearest its own time
+        m64 = subset_model(model, np.ones(len(model), dtype=bool)).double()
+        centres = m64.temporal_centres().cpu().numpy()
+        times = scene.times
+        frame = np.abs(np.clip(centres, times[0], times[-1])[:, None] - times[None]).argmin(axis=1)  # [N]
+        own = torch.as_tensor(times[frame], dtype=torch.float64, device=m64.params["means"].device)
+        mu = m64.at_time(own).means.cpu().numpy()
     label = np.full(len(mu), -1)  # -1 unclassified, 0 static, 1 dynamic
     for cam_i, gt in gts.items():
         cam = scene.cameras[cam_i]
@@ -95,7 +97,7 @@ def lifetime_vs_objects(model: FreeTimeGaussians, scene: Scene, gts: dict[int, G
 # --------------------------------------------------------------------------- scores against ground-truth masks
 
 
-def mask_weights(model: FreeTimeGaussians, cam: Camera, t: float, masks: np.ndarray, backend: str = "auto"
+def mask_weights(model: DynamicGaussians, cam: Camera, t: float, masks: np.ndarray, backend: str = "auto"
                  ) -> np.ndarray:
     """Rendered weight each Gaussian carries on each mask at time ``t``: ``[N, M]`` float64.
 

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from ftgspp.data.scene import Camera, Scene
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods.base import DynamicGaussians
 from ftgspp.view import render_view
 
 ALPHA_MIN = 0.5  # composited quantities are trusted where alpha > this
@@ -33,19 +33,19 @@ ALPHA_MIN = 0.5  # composited quantities are trusted where alpha > this
 # --------------------------------------------------------------------------- velocities
 
 
-def pixel_velocities(model: FreeTimeGaussians, cam: Camera, t: float) -> torch.Tensor:
+def pixel_velocities(model: DynamicGaussians, cam: Camera, t: float) -> torch.Tensor:
     """Image-plane velocity of every Gaussian's centre at time ``t``, px/s, ``[N, 2]``.
 
-    d/dt (fx x/z + cx, fy y/z + cy) with camera-space position p = R μ(t) + T and ṗ = R v.
+    d/dt (fx x/z + cx, fy y/z + cy) with camera-space position p = R μ(t) + T and ṗ = R μ'(t)
+    (the method's ``at_time`` and ``velocities_at``).
     """
-    p_ = model.params
-    dev = p_["means"].device
+    dev = model.params["means"].device
     R = torch.as_tensor(cam.R, dtype=torch.float32, device=dev)
     T = torch.as_tensor(cam.T, dtype=torch.float32, device=dev)
     with torch.no_grad():
-        mu = p_["means"] + p_["velocities"] * (t - p_["times"])[:, None]  # [N, 3]
+        mu = model.at_time(t).means  # [N, 3]
         p = mu @ R.T + T  # [N, 3]
-        pdot = p_["velocities"] @ R.T  # [N, 3]
+        pdot = model.velocities_at(t) @ R.T  # [N, 3]
         z = p[:, 2].clamp_min(1e-6)
         fx, fy = float(cam.K[0, 0]), float(cam.K[1, 1])
         du = fx * (pdot[:, 0] * z - p[:, 0] * pdot[:, 2]) / z**2
@@ -53,7 +53,7 @@ def pixel_velocities(model: FreeTimeGaussians, cam: Camera, t: float) -> torch.T
         return torch.stack([du, dv], dim=-1)
 
 
-def composite(model: FreeTimeGaussians, cam: Camera, t: float, values: torch.Tensor, backend: str = "auto"
+def composite(model: DynamicGaussians, cam: Camera, t: float, values: torch.Tensor, backend: str = "auto"
               ) -> tuple[np.ndarray, np.ndarray]:
     """Alpha-composite per-Gaussian ``values [N, D]``: ``(image / alpha [H, W, D], alpha [H, W])``,
     the normalised image being 0 where alpha <= ``ALPHA_MIN``."""
@@ -65,7 +65,7 @@ def composite(model: FreeTimeGaussians, cam: Camera, t: float, values: torch.Ten
     return np.where(ok[..., None], img / np.where(ok, alpha, 1.0)[..., None], 0.0), alpha
 
 
-def velocity_map(model: FreeTimeGaussians, cam: Camera, t: float, fps: float, backend: str = "auto"
+def velocity_map(model: DynamicGaussians, cam: Camera, t: float, fps: float, backend: str = "auto"
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Composited image-plane velocity in px/frame ``[H, W, 2]`` and alpha ``[H, W]``."""
     return composite(model, cam, t, pixel_velocities(model, cam, t) / fps, backend)
@@ -79,7 +79,7 @@ def xt_slice(frames: np.ndarray, row: int) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(frames)[:, row])
 
 
-def render_frames(model: FreeTimeGaussians, cam: Camera, times: np.ndarray, sh_degree: int,
+def render_frames(model: DynamicGaussians, cam: Camera, times: np.ndarray, sh_degree: int,
                   background: torch.Tensor | None = None, backend: str = "auto") -> np.ndarray:
     """RGB renders at every time, float32 ``[F, H, W, 3]`` in [0, 1]."""
     out = []
@@ -155,13 +155,15 @@ def motion_error(velocity: np.ndarray, alpha: np.ndarray, gt_flow3d: np.ndarray,
     }
 
 
-def scene_motion_error(model: FreeTimeGaussians, scene: Scene, cam: int, gt: GroundTruth,
+def scene_motion_error(model: DynamicGaussians, scene: Scene, cam: int, gt: GroundTruth,
                        frames: list[int] | None = None, backend: str = "auto") -> tuple[dict, dict]:
     """``motion_error`` of ``model`` in camera ``cam`` pooled over ``frames`` (default all),
     and per-frame maps ``{frame: (velocity [H, W, 3], alpha [H, W])}``."""
     frames = list(range(scene.n_frames)) if frames is None else frames
-    vel = model.params["velocities"].detach()
-    maps = {f: composite(model, scene.cameras[cam], float(scene.times[f]), vel, backend) for f in frames}
+    maps = {}
+    for f in frames:
+        t = float(scene.times[f])
+        maps[f] = composite(model, scene.cameras[cam], t, model.velocities_at(t).detach(), backend)
     v = np.stack([maps[f][0] for f in frames])
     a = np.stack([maps[f][1] for f in frames])
     return motion_error(v, a, gt.flow3d[frames], gt.objects[frames]), maps

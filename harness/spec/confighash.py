@@ -43,6 +43,11 @@ HASH_NEUTRAL = {
     "init.candidates_per_frame": "null",
     "init.flow_combine": "mean",
     "strategy.dead": "opacity",
+    "model.method": "freetime",
+    "lr.trbf_center": "0.0001",
+    "lr.trbf_scale": "0.03",
+    "lr.motion": "0.00028",
+    "lr.omega": "0.0001",
 }
 
 
