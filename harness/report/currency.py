@@ -1,7 +1,8 @@
 """Are a report's numbers this checkout's, and what does refreshing them take?
 
 A report is current when every run it counts was made by this checkout's trainer
-(``tracking.provenance.checkout_fingerprint``). A stale one says so in the first lines after
+(``tracking.provenance.checkout_fingerprint``) or by one recorded to train the same bits
+(``tracking.provenance.same_bits``). A stale one says so in the first lines after
 its title (``stale_note``): which trainer made its runs, which this checkout has, the command
 that refreshes it and that command's expected time on this machine (``spec.throughput``: the
 rates the README's table and ``harness.cli.reports_plan`` use). A current one says nothing.
@@ -32,11 +33,14 @@ QUICK = "quick"  # the profile `make reports` runs, whose rate spec.throughput h
 
 
 def to_do(df: pd.DataFrame, trainer: str) -> int:
-    """Runs of the per-run frame ``df`` that refreshing runs: all but those FINISHED by ``trainer``."""
+    """Runs of the per-run frame ``df`` that refreshing runs: all but those FINISHED by ``trainer``
+    (or a trainer recorded to train the same bits)."""
+    from harness.tracking.provenance import same_bits
+
     if not len(df):
         return 0
     made_by = df["trainer_fingerprint"] if "trainer_fingerprint" in df else pd.Series("", index=df.index)
-    return int(len(df) - ((df.status == "FINISHED") & (made_by == trainer)).sum())
+    return int(len(df) - ((df.status == "FINISHED") & made_by.isin(same_bits(trainer))).sum())
 
 
 def expected(runs: int, profile: str, prof: ProfileSpec | None, jobs: int) -> str:
@@ -48,8 +52,11 @@ def expected(runs: int, profile: str, prof: ProfileSpec | None, jobs: int) -> st
 
 
 def stale_note(made_by: list[str], current: str, refresh: str, runs: int, when: str) -> list[str]:
-    """The Markdown lines a stale page opens with; none when every run was made by ``current``."""
-    if not made_by or set(made_by) == {current}:
+    """The Markdown lines a stale page opens with; none when every run was made by ``current`` (or
+    a trainer recorded to train the same bits)."""
+    from harness.tracking.provenance import same_bits
+
+    if not made_by or set(made_by) <= same_bits(current):
         return []
     trainers = ", ".join(f"`{f}`" for f in made_by)
     return [f"**Stale: these numbers are not this checkout's.** Their runs were made by trainer {trainers};"
@@ -59,14 +66,17 @@ def stale_note(made_by: list[str], current: str, refresh: str, runs: int, when: 
 
 def committed_current(df: pd.DataFrame, committed: Path, trainer: str) -> bool:
     """Whether the report's ``runs.csv`` at ``committed`` holds every run of the plan ``df``,
-    finished or diverged, made by ``trainer`` (a recorded divergence is that code's result)."""
+    finished or diverged, made by ``trainer`` or a trainer recorded to train the same bits (a
+    recorded divergence is that code's result)."""
+    from harness.tracking.provenance import same_bits
+
     if not committed.is_file() or not len(df) or not set(KEY) <= set(df.columns):
         return False
     runs = pd.read_csv(committed, dtype={"config_hash": str, "trainer_fingerprint": str})
     if not set(KEY) | {"status", "trainer_fingerprint"} <= set(runs.columns):
         return False
     failure = runs["failure"] if "failure" in runs else pd.Series("", index=runs.index)
-    ok = runs[(runs.trainer_fingerprint == trainer)
+    ok = runs[runs.trainer_fingerprint.isin(same_bits(trainer))
               & ((runs.status == "FINISHED") | ((runs.status == "FAILED") & (failure == "diverged")))]
     have = set(ok[KEY].astype(str).itertuples(index=False, name=None))
     return all(key in have for key in df[KEY].astype(str).itertuples(index=False, name=None))

@@ -40,7 +40,7 @@ from harness.report import COMMITTED_REPORTS, USER_REPORTS, committed, currency,
 from harness.report.results import ReportData, collect
 from harness.spec.runs import Selection, command_line
 from harness.tracking.conventions import browse_command
-from harness.tracking.provenance import checkout_fingerprint, git_sha
+from harness.tracking.provenance import checkout_fingerprint, git_sha, same_bits
 from harness.tracking.store import display_uri
 
 
@@ -164,7 +164,7 @@ def stale_lines(data: ReportData) -> list[str]:
     (``report.currency``): who made them, the command that refreshes them and its time here."""
     current = checkout_fingerprint()
     made_by = data.trainer_fingerprints()
-    if not made_by or set(made_by) == {current}:
+    if not made_by or set(made_by) <= same_bits(current):
         return []
     name, prof = data.study.name, data.study.profile(data.sel.profile)
     refresh = f"{command_line(name, data.sel)} --rerun-stale && study report {name}"

@@ -105,10 +105,13 @@ def _take_over(store: Store, stale: list[RunRecord], me: str, lease_s: float) ->
 def counts_as_done(rec: RunRecord, trainer: str = "") -> bool:
     """A FINISHED run, unless it was scored without LPIPS (weights missing then) and the weights
     exist now (a new run fills the LPIPS columns in), or ``trainer`` is given and the run was
-    made by another trainer fingerprint (``study run --rerun-stale``: the code changed)."""
+    made by another trainer fingerprint (``study run --rerun-stale``: the code changed), not one
+    recorded to train the same bits (``tracking.provenance.same_bits``)."""
+    from harness.tracking.provenance import same_bits
+
     if rec.status != "FINISHED":
         return False
-    if trainer and rec.tags.get("trainer_fingerprint") != trainer:
+    if trainer and rec.tags.get("trainer_fingerprint") not in same_bits(trainer):
         return False
     if rec.metrics.get("lpips_missing") != 1.0:
         return True

@@ -154,7 +154,8 @@ def check_register(register: Register, studies: dict[str, StudySpec], where: str
             if (ref in s.replaced) != bool(c.withdrawn):
                 raise InputError(at, f"'{ref}' is {'not ' if not c.withdrawn else ''}withdrawn in its study file"
                                      f" but {'listed' if ref in s.replaced else 'not listed'} as replaced")
-    orphans = [ref for ref, c in claims.items() if c.group != ClaimGroup.extension and ref not in seen]
+    unregistered = (ClaimGroup.extension, ClaimGroup.second_method)  # claims of this project, not the paper's
+    orphans = [ref for ref, c in claims.items() if c.group not in unregistered and ref not in seen]
     if orphans:
         raise InputError(f"{where}: statements", f"claims of the paper or a convention with no statement: "
                                                  f"{', '.join(orphans)}")

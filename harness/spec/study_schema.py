@@ -103,6 +103,7 @@ class ClaimGroup(StrEnum):
     paper = "paper"
     extension = "extension"
     convention = "convention"
+    second_method = "second_method"
 
 
 class Pairing(StrEnum):
@@ -121,7 +122,8 @@ EXPECTATIONS = {Comparison.mean: DIRECTIONS, Comparison.variance: DIRECTIONS, Co
                 Comparison.decoupled: (Expectation.exists,), Comparison.dissociated: (Expectation.exists,),
                 Comparison.spread: (Expectation.describe,)}
 CLAIM_GROUPS = {ClaimGroup.paper: "the paper's method claims", ClaimGroup.extension: "this project's own extensions",
-                ClaimGroup.convention: "metric conventions"}
+                ClaimGroup.convention: "metric conventions",
+                ClaimGroup.second_method: "the paper's secrets tested on Spacetime Gaussians (STGS), a second method"}
 
 
 # --- scenes and profiles -----------------------------------------------------------------------

@@ -7,6 +7,13 @@ benchmarks never run inside training and do not decide a run's bits): two checko
 fingerprint train the same bits in the same determinism domain, whatever else (harness,
 docs, reports) differs. Reports name it, and ``study check`` uses it to say why runs differ.
 
+``same_bits(trainer)`` is ``trainer`` and every earlier fingerprint that ``same_bits.yaml`` (next to
+this module) records as training the same bits: a change to trainer files that ``study check``
+showed leaves the runs it retrained bit for bit as they were (a refactor, a new method beside the
+old ones). Runs of those trainers count as ``trainer``'s wherever currency is decided (report
+stale notes, ``make reports``' plan, ``study run --rerun-stale``). A record is added only with
+that check's result as its evidence.
+
 ``checkout_fingerprint`` is the fingerprint a report compares its runs with: this checkout's,
 unless ``FTGSPP_CHECKOUT_FINGERPRINT`` names another. Only ``scripts/report_parity.py`` sets it:
 a refactor that moves a trainer file changes the fingerprint by design, and the parity check
@@ -60,6 +67,32 @@ def trainer_fingerprint(root: Path = REPO) -> str:
             if "__pycache__" not in rel and not any(rel[: len(skip)] == skip for skip in NOT_TRAINER):
                 h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()[:12]
+
+
+SAME_BITS = Path(__file__).with_name("same_bits.yaml")
+
+
+def same_bits_records(path: Path | None = None) -> list[dict]:
+    """The records of ``same_bits.yaml`` (``trainer``, ``same_bits_as``, ``change``, ``evidence``, ``date``)."""
+    import yaml
+
+    path = Path(path or SAME_BITS)
+    return list(yaml.safe_load(path.read_text()) or []) if path.is_file() else []
+
+
+def same_bits(trainer: str, path: Path | None = None) -> frozenset[str]:
+    """``trainer`` and every earlier trainer fingerprint recorded to train the same bits as it,
+    following the records back (A -> B -> C): the trainers whose runs count as ``trainer``'s."""
+    earlier: dict[str, set[str]] = {}
+    for rec in same_bits_records(path):
+        earlier.setdefault(str(rec["trainer"]), set()).add(str(rec["same_bits_as"]))
+    found, todo = {trainer}, [trainer]
+    while todo:
+        for prior in earlier.get(todo.pop(), ()):
+            if prior not in found:
+                found.add(prior)
+                todo.append(prior)
+    return frozenset(found)
 
 
 CHECKOUT_FINGERPRINT = "FTGSPP_CHECKOUT_FINGERPRINT"

@@ -169,3 +169,39 @@ def test_stale_pages_and_reports_from_the_committed_runs(tmp_path: Path, monkeyp
     (committed / "runs.csv").unlink()
     with pytest.raises(InputError, match="no committed runs"):
         write_report("mini", studies_dir=studies, reports_root=Path("again3"), echo=lambda s: None)
+
+
+def test_runs_of_a_trainer_recorded_to_train_the_same_bits_count_as_current(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    from types import SimpleNamespace
+
+    import harness.tracking.provenance as prov
+    from harness.report import currency
+    from harness.run.lease import counts_as_done
+
+    a, b, c, d = "a" * 12, "b" * 12, "c" * 12, "d" * 12
+    path = tmp_path / "same_bits.yaml"
+    path.write_text(yaml.safe_dump([
+        {"trainer": b, "same_bits_as": a, "change": "a refactor", "evidence": "study check x: 3 of 3 identical"},
+        {"trainer": c, "same_bits_as": b, "change": "a new method", "evidence": "study check y: 5 of 5 identical"},
+    ]))
+    monkeypatch.setattr(prov, "SAME_BITS", path)
+    assert prov.same_bits(c) == {a, b, c} and prov.same_bits(b) == {a, b}  # never forward in time
+    assert prov.same_bits(d) == {d}
+    assert currency.stale_note([a, c], c, "make reports", 0, "") == []
+    assert currency.stale_note([a, d], c, "make reports", 1, "~1 min")[0].startswith("**Stale")
+    df = pd.DataFrame({"status": ["FINISHED"] * 3 + ["FAILED"], "trainer_fingerprint": [a, c, d, c]})
+    assert currency.to_do(df, c) == 2 and currency.to_do(df, b) == 3
+    page = index_markdown([_entry(a), _entry(c)], [], [], current=c)
+    assert "Stale" not in page and "More than one trainer" not in page and "recorded to train the same bits" in page
+    assert "More than one trainer" in index_markdown([_entry(a), _entry(d)], [], [], current=c)
+    run = lambda fp: SimpleNamespace(status="FINISHED", tags={"trainer_fingerprint": fp}, metrics={})  # noqa: E731
+    assert counts_as_done(run(a), c) and not counts_as_done(run(d), c)
+
+
+def test_every_same_bits_record_names_its_check() -> None:
+    from harness.tracking.provenance import same_bits_records
+
+    for rec in same_bits_records():
+        assert re.fullmatch(r"[0-9a-f]{12}", str(rec["trainer"])) and re.fullmatch(r"[0-9a-f]{12}", str(rec["same_bits_as"]))
+        assert "study check" in rec["evidence"] and rec["change"] and rec["date"]
