@@ -47,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--height", type=int, default=96)
     train.add_argument("--backends", default="", help="comma-separated (default: every available one)")
     train.add_argument("--breakdown", action="store_true", help="also time every phase of an iteration")
+    train.add_argument("--models", default="ftgs",
+                       help="comma-separated methods (conf/model/<name>.yaml), each timed on each backend (default: ftgs)")
     train.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
     train.add_argument("--target", default="host", help="LLVM CPU to compile the kernels for (default: host)")
     scale = sub.add_parser("scale", help="cost of an iteration over Gaussian counts x resolutions")
@@ -124,7 +126,8 @@ def main(argv: list[str] | None = None) -> int:
 
         result = bench_train(iterations=args.iterations, budget=args.budget, repeats=args.repeats,
                              width=args.width, height=args.height, breakdown=args.breakdown,
-                             backends=[b for b in args.backends.split(",") if b] or None)
+                             backends=[b for b in args.backends.split(",") if b] or None,
+                             models=[m for m in args.models.split(",") if m] or None)
         print(json.dumps(result) if args.json else format_train_table(result))
         return 0
     from ftgspp.bench.scale import bench_scale, format_scale_table, plot_scale

@@ -8,9 +8,12 @@ median of the trainer's own loop clock (``train_seconds``), so initialisation an
 evaluation are not counted. ``reference`` (pure PyTorch autograd everywhere, the
 correctness oracle) is the slow path the ``cpu`` backend is compared with in the same run.
 ``--breakdown`` adds one more run per backend under ``PhaseTimer`` (``phases.py``):
-milliseconds per phase of an iteration.
+milliseconds per phase of an iteration. ``--models ftgs,stg`` times each method
+(``conf/model/<name>.yaml``) on each backend, alternating, and gives each method's time over
+the first's (``ratio_vs_first_model``): what a method costs against another, measured in one run.
 
     ftgspp bench train [--iterations 200] [--budget 5000] [--repeats 2] [--breakdown] [--json]
+    ftgspp bench train --models ftgs,stg --backends cpu
 """
 
 from __future__ import annotations
@@ -25,15 +28,31 @@ import torch
 from ftgspp.bench.isa import describe, host_isa
 from ftgspp.bench.phases import PhaseTimer
 from ftgspp.bench.timing import usable_backends
-from ftgspp.config import DataConfig, TrainConfig
+from ftgspp.config import DataConfig, ModelConfig, TrainConfig
 from ftgspp.data.load import load_scene
 from ftgspp.data.synthetic.build import generate
 
+CONF_MODELS = Path(__file__).resolve().parents[2] / "conf" / "model"
 
-def bench_config(out_dir: Path, scene_dir: Path, backend: str, iterations: int, budget: int, seed: int) -> TrainConfig:
+
+def model_config(name: str) -> ModelConfig:
+    """The ``ModelConfig`` of ``conf/model/<name>.yaml`` (``model=<name>`` on the command line)."""
+    import yaml
+
+    path = CONF_MODELS / f"{name}.yaml"
+    if not path.is_file():
+        from ftgspp.errors import InputError
+
+        raise InputError("--models", f"no model '{name}' (conf/model/ has {', '.join(sorted(p.stem for p in CONF_MODELS.glob('*.yaml')))})")
+    return ModelConfig(**(yaml.safe_load(path.read_text()) or {}))
+
+
+def bench_config(out_dir: Path, scene_dir: Path, backend: str, iterations: int, budget: int, seed: int,
+                 model: str = "ftgs") -> TrainConfig:
     """The benchmark's run: relocation every 100 iterations from the start, no diagnostics."""
     cfg = TrainConfig(iterations=iterations, budget=budget, backend=backend, seed=seed, progress=False,
-                      diagnostics=False, resume=False, out_dir=str(out_dir), checkpoint_every=10**9)
+                      diagnostics=False, resume=False, out_dir=str(out_dir), checkpoint_every=10**9,
+                      model=model_config(model))
     cfg.data.path = str(scene_dir)
     cfg.init.keyframe_stride = 5
     cfg.strategy.refine_start_iter = 0
@@ -49,41 +68,47 @@ def bench_scene(root: Path, width: int, height: int, seed: int) -> Path:
 
 def bench_train(
     iterations: int = 200, budget: int = 5000, repeats: int = 2, width: int = 128, height: int = 96,
-    backends: list[str] | None = None, seed: int = 0, breakdown: bool = False,
+    backends: list[str] | None = None, seed: int = 0, breakdown: bool = False, models: list[str] | None = None,
 ) -> dict[str, Any]:
     """Median milliseconds per training iteration for each backend (and ratios to ``reference``).
 
-    With ``breakdown``, ``result["breakdown"][backend]`` maps phase -> ms per iteration.
+    With several ``models`` the rows are ``<model>/<backend>`` and ``ratio_vs_first_model`` gives
+    each row's time over the first model's on the same backend. With ``breakdown``,
+    ``result["breakdown"][row]`` maps phase -> ms per iteration.
     """
     from ftgspp.trainer import train
 
     backends = backends or usable_backends()
+    models = models or ["ftgs"]
+    key = lambda m, b: b if len(models) == 1 else f"{m}/{b}"  # noqa: E731
+    rows = [(m, b, key(m, b)) for m in models for b in backends]
     with tempfile.TemporaryDirectory(prefix="ftgspp-bench-") as tmp:
         root = Path(tmp)
         scene_dir = bench_scene(root, width, height, seed)
         scene = load_scene(DataConfig(path=str(scene_dir)))
-        per_it: dict[str, list[float]] = {b: [] for b in backends}
-        for b in backends:  # warm-up: Numba compiles (or loads its cache) on first use
-            train(bench_config(root / f"{b}_warmup", scene_dir, b, 3, budget, seed), scene)
+        run = lambda m, b, tag, its: train(  # noqa: E731
+            bench_config(root / f"{m}_{b}_{tag}", scene_dir, b, its, budget, seed, m), scene)
+        per_it: dict[str, list[float]] = {key: [] for _, _, key in rows}
+        for m, b, _k in rows:  # warm-up: Numba compiles (or loads its cache) on first use
+            run(m, b, "warmup", 3)
         for r in range(repeats):
-            for b in backends:
-                result = train(bench_config(root / f"{b}_{r}", scene_dir, b, iterations, budget, seed), scene)
-                per_it[b].append(1000.0 * result.metrics["train_seconds"] / iterations)
+            for m, b, k in rows:
+                per_it[k].append(1000.0 * run(m, b, r, iterations).metrics["train_seconds"] / iterations)
         phases: dict[str, dict[str, float]] = {}
         if breakdown:
-            for b in backends:
+            for m, b, k in rows:
                 with PhaseTimer() as timer:
-                    train(bench_config(root / f"{b}_phases", scene_dir, b, iterations, budget, seed), scene)
-                phases[b] = timer.per_iteration(iterations)
-    ms = {b: statistics.median(v) for b, v in per_it.items()}
-    ref = ms.get("reference")
+                    run(m, b, "phases", iterations)
+                phases[k] = timer.per_iteration(iterations)
+    ms = {k: statistics.median(v) for k, v in per_it.items()}
     out = {
         "iterations": iterations, "budget": budget, "width": width, "height": height, "repeats": repeats,
-        "threads": torch.get_num_threads(), "isa": host_isa(),
-        "backends": {b: {"ms_per_iter": ms[b], "iters_per_second": 1000.0 / ms[b], "all_ms": per_it[b]}
-                     for b in backends},
-        "speedup_vs_reference": {b: ref / ms[b] for b in backends} if ref else {},
+        "threads": torch.get_num_threads(), "isa": host_isa(), "models": models,
+        "backends": {k: {"ms_per_iter": ms[k], "iters_per_second": 1000.0 / ms[k], "all_ms": per_it[k]} for k in ms},
+        "speedup_vs_reference": {k: ms[key(m, "reference")] / ms[k] for m, b, k in rows if key(m, "reference") in ms},
     }
+    if len(models) > 1:
+        out["ratio_vs_first_model"] = {k: ms[k] / ms[key(models[0], b)] for m, b, k in rows}
     if breakdown:
         out["breakdown"] = phases
     return out
@@ -95,11 +120,13 @@ def format_train_table(result: dict[str, Any]) -> str:
              f"{result['iterations']} iterations x {result['repeats']} repeats (median), "
              f"{result.get('threads', '?')} threads",
              *([describe(result["isa"])] if "isa" in result else []),
-             f"{'backend':<10} {'ms/iter':>9} {'it/s':>8} {'vs reference':>13}"]
+             f"{'backend':<14} {'ms/iter':>9} {'it/s':>8} {'vs reference':>13}"
+             + (f" {'vs ' + result['models'][0]:>10}" if "ratio_vs_first_model" in result else "")]
     for b, r in result["backends"].items():
         sp = result["speedup_vs_reference"].get(b)
-        lines.append(f"{b:<10} {r['ms_per_iter']:>9.2f} {r['iters_per_second']:>8.1f} "
-                     f"{(f'{sp:.1f}x' if sp else '-'):>13}")
+        vs_first = result.get("ratio_vs_first_model", {}).get(b)
+        lines.append(f"{b:<14} {r['ms_per_iter']:>9.2f} {r['iters_per_second']:>8.1f} "
+                     f"{(f'{sp:.1f}x' if sp else '-'):>13}" + (f" {vs_first:>9.2f}x" if vs_first else ""))
     if result.get("breakdown"):
         lines += ["", format_breakdown(result["breakdown"])]
     return "\n".join(lines)

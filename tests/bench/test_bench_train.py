@@ -93,3 +93,17 @@ def test_fit_recovers_planted_exponents():
 def test_scale_sizes_are_parsed_before_anything_runs():
     with pytest.raises(InputError, match="--sizes.*WxH"):
         main(["scale", "--sizes", "128x96,256"])
+
+
+def test_bench_train_times_each_method_and_its_ratio_to_the_first(capsys):
+    assert main(["train", "--iterations", "3", "--budget", "200", "--repeats", "1", "--width", "64",
+                 "--height", "48", "--backends", "cpu", "--models", "ftgs,stg", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(out["backends"]) == {"ftgs/cpu", "stg/cpu"} and out["models"] == ["ftgs", "stg"]
+    ratio = out["ratio_vs_first_model"]
+    assert ratio["ftgs/cpu"] == 1.0
+    assert ratio["stg/cpu"] == out["backends"]["stg/cpu"]["ms_per_iter"] / out["backends"]["ftgs/cpu"]["ms_per_iter"]
+    lines = format_train_table(out).splitlines()
+    assert lines[2].split()[-2:] == ["vs", "ftgs"] and lines[3].split()[0] == "ftgs/cpu" and lines[3].endswith("1.00x")
+    with pytest.raises(InputError, match="no model 'nope'"):
+        main(["train", "--iterations", "3", "--models", "nope"])
