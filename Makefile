@@ -55,7 +55,7 @@ reports: install weights
 	@# render speed and size of the speed-accuracy grid's models, one at a time, nothing else running
 	case " $(STUDIES) " in *" speed_accuracy "*) $(VENV)/bin/study measure speed_accuracy --profile quick;; esac
 	$(VENV)/bin/study report --all --profile quick --if-changed --out reports
-	$(VENV)/bin/study index --out reports
+	$(VENV)/bin/study index --profile quick --out reports
 	@echo "open reports/index.md"
 
 # Two pytest workers (pytest-xdist), one test file each at a time so a file's fixtures are built

@@ -8,7 +8,7 @@
     study report NAME [same selection options] [--out DIR]   (default outputs/reports/NAME)
     study budget --preset P | --data DIR [--start N --max N --threshold DB --seeds N --metric M] [overrides]
     study check NAME [--reference runs.csv] [--strict]   same training bits as a committed report, or why not
-    study index [--out DIR]          OUT/index.md: every study's claims with verdicts
+    study index [--out DIR] [--profile P]  OUT/index.md: every study's claims with verdicts
 
 Studies live in ``studies/NAME.yaml``. Runs are tracked in MLflow (``sqlite:///mlflow.db``
 in the working directory unless ``MLFLOW_TRACKING_URI`` or ``tracking.uri=`` says
@@ -121,6 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
     budget.add_argument("overrides", nargs="*", help="Hydra overrides for every run, e.g. model=ftgspp")
     index = sub.add_parser("index", help="index.md: one row per claim of every study with runs")
     index.add_argument("--out", type=Path, default=USER_REPORTS, help=f"reports root (default: {USER_REPORTS})")
+    index.add_argument("--profile", choices=PROFILES, default=None,
+                       help="decide every study over all of this profile's runs (default: each study's latest invocation)")
     return parser
 
 
@@ -308,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "index":
             from harness.report.index import write_claims_index
 
-            write_claims_index(args.out)
+            write_claims_index(args.out, profile=args.profile)
             return 0
     except InputError as err:
         exit_on_input_error(err)

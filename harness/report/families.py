@@ -23,6 +23,7 @@ from harness.report.results import collect, trainer_fingerprints
 from harness.spec import study_files
 from harness.spec.metrics import add_differences
 from harness.spec.paper_register import Register
+from harness.spec.runs import Selection
 from harness.spec.study_files import list_studies, load_register, load_study
 
 CODE_AT = re.compile(r"code at ([0-9a-f]{7,40}(?:, [0-9a-f]{7,40})*)")  # a study page's provenance line
@@ -43,9 +44,11 @@ class StudyClaims:
     source: str = "tracking store"  # or "committed report" (its runs.csv)
 
 
-def store_claims(name: str, register: Register, studies_dir: Path | None = None) -> StudyClaims | None:
-    """The study's claims on its latest invocation's runs in the tracking store; None when none finished."""
-    data = collect(name, None, studies_dir)
+def store_claims(name: str, register: Register, studies_dir: Path | None = None,
+                 profile: str | None = None) -> StudyClaims | None:
+    """The study's claims on its runs in the tracking store: every planned run of ``profile`` when
+    it is given, else its latest invocation's; None when none finished."""
+    data = collect(name, Selection(profile=profile) if profile else None, studies_dir)
     n_done = int((data.df.status == "FINISHED").sum())
     if n_done == 0:
         return None
@@ -84,21 +87,25 @@ def decide_all(entries: list[StudyClaims]) -> list[StudyClaims]:
 
 
 @functools.lru_cache(maxsize=4)
-def _family_verdicts(root: Path, studies_dir: Path) -> tuple[tuple[StudyClaims, ...], tuple[str, ...]]:
+def _family_verdicts(root: Path, studies_dir: Path, profile: str | None) -> tuple[tuple[StudyClaims, ...], tuple[str, ...]]:
     register = load_register(studies_dir)
     entries, missing = [], []
     for name in list_studies(studies_dir):
-        entry = (store_claims(name, register, studies_dir) or report_claims(name, root, register, studies_dir)
+        entry = (store_claims(name, register, studies_dir, profile) or report_claims(name, root, register, studies_dir)
                  or (report_claims(name, COMMITTED_REPORTS, register, studies_dir)
                      if Path(root).resolve() != COMMITTED_REPORTS.resolve() else None))
         (entries.append(entry) if entry is not None else missing.append(name))
     return tuple(decide_all(entries)), tuple(missing)
 
 
-def family_verdicts(root: Path, studies_dir: Path | None = None) -> tuple[list[StudyClaims], list[str]]:
+def family_verdicts(root: Path, studies_dir: Path | None = None,
+                    profile: str | None = None) -> tuple[list[StudyClaims], list[str]]:
     """(every study with finished runs, decided together; the studies without runs), for the
-    reports under ``root`` (module docstring). Computed once per process and ``root``."""
-    entries, missing = _family_verdicts(Path(root), Path(studies_dir or study_files.STUDIES_DIR))
+    reports under ``root`` (module docstring): each study's runs are every planned run of
+    ``profile`` when it is given (``study report --profile``, ``study index --profile``: what
+    ``make reports`` writes, whatever subset was run last), else its latest invocation's.
+    Computed once per process, ``root`` and ``profile``."""
+    entries, missing = _family_verdicts(Path(root), Path(studies_dir or study_files.STUDIES_DIR), profile)
     return [replace(e, frame=e.frame.copy()) for e in entries], list(missing)
 
 
@@ -107,15 +114,16 @@ def forget() -> None:
     _family_verdicts.cache_clear()
 
 
-def study_frame(name: str, root: Path, studies_dir: Path | None = None) -> pd.DataFrame | None:
+def study_frame(name: str, root: Path, studies_dir: Path | None = None,
+                profile: str | None = None) -> pd.DataFrame | None:
     """One study's rows of the decision over every study (None when the study has no finished runs)."""
-    entries, _ = family_verdicts(root, studies_dir)
+    entries, _ = family_verdicts(root, studies_dir, profile)
     return next((e.frame for e in entries if e.study == name), None)
 
 
-def deciding_verdicts(root: Path, studies_dir: Path | None = None) -> dict[str, str]:
+def deciding_verdicts(root: Path, studies_dir: Path | None = None, profile: str | None = None) -> dict[str, str]:
     """Each paper statement's deciding claim and its verdict (``secret5_cc.cc_raises_mean_drift:
     inconclusive``), for the pages that show evidence for it."""
-    entries, _ = family_verdicts(root, studies_dir)
+    entries, _ = family_verdicts(root, studies_dir, profile)
     return {r.statement_id: f"decided by `{e.study}.{r.claim}`: {r.verdict}" for e in entries
             for _, r in e.frame.iterrows() if r.statement_id and r.role == V.DECIDES}

@@ -170,7 +170,7 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     prints = sorted({f for e in entries for f in e.fingerprints})
     lines = ["# The answers: every statement of the paper on our runs", "",
              *(stale_note(prints, current, "make reports", *todo) if current else [])]
-    lines += ["Regenerate with `make reports` (or `study index --out reports`). One row per statement of the paper"
+    lines += ["Regenerate with `make reports` (or `study index --profile quick --out reports`). One row per statement of the paper"
               " (`studies/_paper.yaml`), counted once and decided by one claim; each claim's smallest effect of"
               " interest (SESOI) is its metric's, fixed once per metric on its own scale (docs/sesoi.md); the"
               " verdicts are corrected over the families below, across every study, and the study pages show the"
@@ -253,16 +253,17 @@ def refresh(entries: list[StudyClaims], current: str, studies_dir: Path | None =
 
 
 def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | None = None,
-                       echo: Callable[[str], None] = print) -> Path:
+                       echo: Callable[[str], None] = print, profile: str | None = None) -> Path:
     """Write ``reports_root/index.md`` over every study in ``studies_dir``; return its path.
 
-    Each study's claims come from its runs in the tracking store, or, when the store has none,
-    from its report already under ``reports_root`` (``report.families``).
+    Each study's claims come from its runs in the tracking store (every planned run of
+    ``profile`` when given, else its latest invocation's), or, when the store has none, from its
+    report already under ``reports_root`` (``report.families``).
     """
     root = Path(reports_root)
     root.mkdir(parents=True, exist_ok=True)
     forget()  # the index decides afresh from the runs as they are now
-    entries, missing = family_verdicts(root, studies_dir)
+    entries, missing = family_verdicts(root, studies_dir, profile)
     register = load_register(studies_dir)
     with_runs = {e.study for e in entries}
     charts = [(caption, f"{study}/{png}") for study, png, caption in CHARTS

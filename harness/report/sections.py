@@ -150,18 +150,18 @@ def tables_section(data: ReportData) -> TablesSection:
     return TablesSection(tabs, summaries, "\n".join(md), "\n".join(tex))
 
 
-def claims_section(data: ReportData, out: Path) -> Section | None:
+def claims_section(data: ReportData, out: Path, profile: str | None = None) -> Section | None:
     """The study's claims tested on its runs, with the verdicts of the decision over every study
-    (``report.families``: the same as ``reports/index.md``'s); ``claims.csv``, a scatter per
-    existential claim."""
+    (``report.families``: the same as ``reports/index.md``'s, every study read at ``profile`` when
+    given); ``claims.csv``, a scatter per existential claim."""
     if not data.study.claims:
         return None
-    frame = families.study_frame(data.study.name, out.parent)
+    frame = families.study_frame(data.study.name, out.parent, profile=profile)
     if frame is None:  # no finished run here or anywhere the index reads: the claims, untested
         frame = verdicts.decide(verdicts.evaluate(registry.add_differences(data.df), data.study.claims,
                                                   data.study.name, load_register()), label=families.EVERY_STUDY)
     frame.to_csv(out / "claims.csv", index=False)
-    md = claims_table.claims_markdown(frame, families.deciding_verdicts(out.parent))
+    md = claims_table.claims_markdown(frame, families.deciding_verdicts(out.parent, profile=profile))
     for c in data.study.claims:
         if c.test in ("decoupled", "dissociated"):  # secret 2: "clean RGB does not imply clean motion"
             p = claims_table.decoupled_plot(data.df, c, out / f"claim_{c.id}.png")

@@ -217,7 +217,11 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
     out.mkdir(parents=True, exist_ok=True)
     data.df.to_csv(out / "runs.csv", index=False)
     main = sections.tables_section(data)
-    extra = [s for s in (sections.claims_section(data, out), sections.variance_section(data, out),
+    # a whole profile asked for (`study report --all --profile quick`, as `make reports`): every
+    # study's verdicts over that profile's runs, not over whatever subset each last ran
+    whole = sel is not None and not (sel.seeds or sel.scenes or sel.variants or sel.overrides)
+    extra = [s for s in (sections.claims_section(data, out, sel.profile if whole else None),
+                         sections.variance_section(data, out),
                          sections.ladders_section(data, out)) if s is not None]
     (out / "table.md").write_text(main.md + "".join(f"\n## {s.title}\n\n{s.md}\n" for s in extra))
     (out / "table.tex").write_text(main.tex + "".join(f"\n{s.tex}\n" for s in extra if s.tex))

@@ -158,3 +158,29 @@ def test_the_run_count_line_multiplies_only_a_full_grid() -> None:
     # secret3's shape: each scene runs its own variants (and some fewer seeds): no product
     ragged = pd.DataFrame({"variant": ["a", "a", "b"], "scene": ["s", "s", "t"], "seed": [0, 1, 0]})
     assert _grid(3, ragged).startswith("over 2 variants, 2 scenes and 2 seeds (not every")
+
+
+def test_a_profile_decides_over_all_its_runs_whatever_subset_ran_last(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """`make reports` reads every study at the quick profile: a later `study run --variants cc`
+    (a new arm's runs, say) must not leave the other arms' claims untested in the index."""
+    import harness.spec.study_files
+    from harness.cli.study import main
+    from harness.run.runner import run_study
+    from harness.spec.runs import Selection
+
+    monkeypatch.chdir(tmp_path)
+    studies = tmp_path / "studies"
+    studies.mkdir()
+    (studies / "mini.yaml").write_text(yaml.safe_dump(MINI))
+    monkeypatch.setattr(harness.spec.study_files, "STUDIES_DIR", studies)
+    quiet = dict(studies_dir=studies, train_fn=fake_train, generate=fake_generate, echo=lambda s: None)
+    run_study("mini", Selection(), **quiet)
+    run_study("mini", Selection(variants=["cc"], seeds=4), **quiet)  # the latest invocation: one arm, one more seed
+    verdict = lambda: pd.read_csv("reports/claims.csv").set_index("id").verdict["cc_mean"]  # noqa: E731
+    assert main(["index", "--out", "reports"]) == 0
+    assert verdict() == V.NOT_TESTED  # the latest invocation has no baseline runs
+    assert main(["index", "--profile", "quick", "--out", "reports"]) == 0
+    assert verdict() != V.NOT_TESTED  # the quick profile's 3 seeds of both arms
+    assert main(["report", "mini", "--profile", "quick", "--out", "reports"]) == 0
+    assert pd.read_csv("reports/mini/claims.csv").set_index("id").verdict["cc_mean"] == verdict()
