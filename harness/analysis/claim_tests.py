@@ -245,10 +245,11 @@ def _contrast(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Re
 
 def _seed_aligned(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...], pairs: Callable
                   ) -> Iterator[tuple[str, str, str, pd.DataFrame, pd.DataFrame]]:
-    """``(scene, a, b, x, y)`` for every scene and variant pair ``pairs(variants, 2)`` (combinations
-    or permutations) with at least 3 seeds that logged both metrics: ``x`` of ``claim.metric``
+    """``(scene, a, b, x, y)`` for every scene and pair ``pairs(variants, 2)`` (combinations or
+    permutations) of the study's variants (``claim.among`` only, when it names some) with at least
+    3 seeds that logged both metrics: ``x`` of ``claim.metric``
     and ``y`` of ``claim.versus``, wide by variant, on the same seeds."""
-    variants = list(dict.fromkeys(df.variant))
+    variants = [v for v in dict.fromkeys(df.variant) if not claim.among or v in claim.among]
     for scene in scenes or tuple(dict.fromkeys(df.scene)):
         for va, vb in pairs(variants, 2):
             x = wide(df, claim.metric, [va, vb], (scene,))

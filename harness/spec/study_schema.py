@@ -256,7 +256,8 @@ class ClaimSpec:
     ``decoupled`` (on some scene, two variants are equivalent in ``metric`` within ±SESOI yet
     differ in ``versus``), ``dissociated`` (on some scene, one variant is not worse than another
     in ``metric`` — non-inferior at the SESOI — yet worse in ``versus``: "clean RGB does not imply
-    clean motion") or ``spread`` (variant ``a``'s run-to-run SD, described beside the paper's).
+    clean motion"; both over every pair of the study's variants, or of ``among``) or ``spread``
+    (variant ``a``'s run-to-run SD, described beside the paper's).
     ``expect``: ``higher`` / ``lower`` (a relative to b), ``not_higher`` / ``not_lower``
     (equivalent counts as reproduced), ``equivalent`` ("≈": TOST reproduces, the minimal-effect
     test contradicts), ``exists`` (decoupled, dissociated), ``describe`` (spread);
@@ -291,6 +292,9 @@ class ClaimSpec:
     # interaction: (a, b) per scene, in the order of ``scenes`` (file: [[stride1, stride5], [stride2, stride4]])
     pairs: tuple[tuple[str, str], ...] = key(default=(), written=list[list[str]],
                                              read=lambda rows: tuple(tuple(r) for r in rows))
+    # decoupled / dissociated: the variants whose pairs the existential search tries (default: every
+    # variant of the study); pins a claim's scope when arms are added to its study later
+    among: tuple[str, ...] = ()
     requires: tuple[Requires, ...] = ()  # all must be present (file: a list of {metric, min} / {metric, above})
     needs: str = ""  # real data the claim needs; "not tested" rows say so
     registered: str = ""  # "": written before its runs; else when and why it was written after them
@@ -301,7 +305,8 @@ class ClaimSpec:
 
     def arms(self) -> tuple[str, ...]:
         """Every variant the claim compares, in order of first mention."""
-        named = [self.a, self.b, *(v for w in self.contrasts for v, _ in w), *(v for p in self.pairs for v in p)]
+        named = [self.a, self.b, *(v for w in self.contrasts for v, _ in w), *(v for p in self.pairs for v in p),
+                 *self.among]
         return tuple(dict.fromkeys(v for v in named if v))
 
 

@@ -176,6 +176,21 @@ def test_dissociation_finds_a_model_that_renders_as_well_but_moves_worse():
     assert V.decide(V.evaluate(coupled, [c])).verdict[0] == V.INCONCLUSIVE  # better RGB and better motion
 
 
+
+def test_among_keeps_an_existential_claim_to_the_variants_it_was_registered_over():
+    """An arm added to a study later (a second method) must not enter an existential search."""
+    rng = np.random.default_rng(12)
+    base = 30 + rng.normal(0, 0.2, 6)
+    df = runs({("baseline", "fast"): base, ("flow", "fast"): base - 1.0 + rng.normal(0, 0.05, 6),
+               ("stgs", "fast"): base + 0.3 + rng.normal(0, 0.05, 6)})
+    df["motion_epe_dynamic"] = np.where(df.variant == "stgs", 1.5, 1.0) + rng.normal(0, 0.03, len(df))
+    c = claim(test="dissociated", expect="exists", versus="motion_epe_dynamic", a="", b="")
+    row = V.decide(V.evaluate(df, [c])).iloc[0]
+    assert row.verdict == V.REPRODUCED and "best pair stgs vs " in row.detail  # found through the new arm
+    pinned = V.decide(V.evaluate(df, [claim(test="dissociated", expect="exists", versus="motion_epe_dynamic",
+                                            a="", b="", among=("baseline", "flow"))])).iloc[0]
+    assert pinned.verdict == V.INCONCLUSIVE and "stgs" not in pinned.detail and "over 2 pairs" in pinned.method
+
 def test_an_interaction_may_compare_other_variants_on_each_scene():
     rng = np.random.default_rng(11)
     n = 6
