@@ -31,6 +31,7 @@ from typing import Any, Callable
 SEAMS: tuple[tuple[str, str], ...] = (
     ("data (frame lookup)", "ftgspp.data.scene:Scene.image"),
     ("model at time t", "ftgspp.model:FreeTimeGaussians.at_time"),
+    ("model at time t", "ftgspp.methods.stg:SpacetimeGaussians.at_time"),
     ("SH colour", "ftgspp.view:eval_sh"),
     ("projection", "ftgspp.render.project:project"),
     ("prepare forward (time + SH + projection)", "ftgspp.render.prepare:_PrepareCPU.forward"),

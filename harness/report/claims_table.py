@@ -168,7 +168,7 @@ def decoupled_plot(df: pd.DataFrame, claim: ClaimSpec, path: Path) -> Path:
 
     from harness.report.plots import save_figure
 
-    ok = df[df.status == "FINISHED"]
+    ok = df[(df.status == "FINISHED") & (df.variant.isin(claim.among) if claim.among else True)]  # its search's arms
     cols = {claim.metric, claim.versus}
     ok = ok[ok[claim.metric].notna() & ok[claim.versus].notna()] if cols <= set(ok) else ok[:0]
     scenes = list(dict.fromkeys(ok.scene)) or [""]

@@ -287,6 +287,8 @@ def _claims(claims: tuple[ClaimSpec, ...], where: str, variants: set[str]) -> tu
                     f"unknown metric '{metric}' (use {', '.join(claimable())})")
         for v in c.arms():
             require(v in variants, at, f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
+        require(not c.among or (c.test in (Comparison.decoupled, Comparison.dissociated) and len(c.among) >= 2),
+                f"{at}.among", "only a decoupled or dissociated claim searches 'among' variants (two or more)")
         if c.test in (Comparison.decoupled, Comparison.dissociated):
             require(bool(c.versus), at, f"a {c.test} claim needs 'versus' (the metric that differs)")
         elif c.test == Comparison.contrast:

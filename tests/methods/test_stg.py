@@ -161,7 +161,9 @@ def test_from_points_starts_as_the_public_lite_model() -> None:
 
 
 @pytest.mark.slow
-def test_training_improves_saves_and_resumes(tiny_scene, tmp_path) -> None:
+def test_training_improves_saves_and_resumes_exactly(tiny_scene, tmp_path) -> None:
+    from tests.test_trainer import StopAt
+
     cfg = TrainConfig(model=STG, profile="smoke", iterations=40, budget=300, sh_degree_interval=10,
                       checkpoint_every=20, log_every=10, eval_lpips=[], diagnostics=True, diagnostics_figures=False,
                       progress=False, out_dir=str(tmp_path / "run"))
@@ -171,14 +173,18 @@ def test_training_improves_saves_and_resumes(tiny_scene, tmp_path) -> None:
     assert result.status == "FINISHED"
     for key in ("psnr", "psnr_cc", "n_faded", "lifetime_median_fraction", "motion_epe_dynamic"):
         assert math.isfinite(result.metrics[key]), key
+    untrained = train(replace(cfg, iterations=0, diagnostics=False, out_dir=str(tmp_path / "init")), tiny_scene)
+    assert result.metrics["psnr"] > untrained.metrics["psnr"] + 1.0  # 40 iterations learn something
     model, loaded_cfg = load_run(tmp_path / "run")
     assert isinstance(model, SpacetimeGaussians) and loaded_cfg.model.method == "stg"
     assert set(model.params) == {"means", "trbf_center", "trbf_scale", "motion", "quats", "omega", "scales",
                                  "opacities", "rgb"}
     assert (model.params["motion"] != 0).any() and (model.params["omega"] != 0).any()  # they were trained
 
-    again = train(replace(cfg, out_dir=str(tmp_path / "again")), tiny_scene)  # the same seed: the same bits
-    model2, _ = load_run(tmp_path / "again")
-    assert again.status == "FINISHED"
-    assert all(torch.equal(model.params[k], model2.params[k]) for k in model.params)
-
+    resumed = replace(cfg, out_dir=str(tmp_path / "resumed"))
+    with pytest.raises(KeyboardInterrupt):  # dies at step 30, after the checkpoint at step 20
+        train(resumed, tiny_scene, StopAt(30))
+    assert torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=False)["step"] == 20
+    assert train(resumed, tiny_scene).status == "FINISHED"
+    model2, _ = load_run(tmp_path / "resumed")
+    assert all(torch.equal(model.params[k], model2.params[k]) for k in model.params)  # resumed to the same bits
