@@ -36,7 +36,16 @@ from typing import Callable
 import pandas as pd
 
 from harness.analysis import aggregate
-from harness.report import COMMITTED_REPORTS, USER_REPORTS, committed, currency, sections, speed_accuracy_text, tables
+from harness.report import (
+    COMMITTED_REPORTS,
+    USER_REPORTS,
+    committed,
+    currency,
+    families,
+    sections,
+    speed_accuracy_text,
+    tables,
+)
 from harness.report.results import ReportData, collect
 from harness.spec.runs import Selection, command_line
 from harness.tracking.conventions import browse_command
@@ -185,13 +194,17 @@ def _grid(n_runs: int, df: pd.DataFrame) -> str:
 FINGERPRINT = ".fingerprint"  # what a report was made from: its runs and the code that wrote it
 
 
-def fingerprint(df: pd.DataFrame) -> str:
-    """A hash of the planned runs (run id, status, every metric) and of the harness code
-    version: equal fingerprints mean the report would come out the same."""
+def fingerprint(df: pd.DataFrame, decided: pd.DataFrame | None = None) -> str:
+    """A hash of the planned runs (run id, status, every metric), of the study's claims as the
+    decision over every study left them (``decided``: a run of another study can move this page's
+    corrected p-values) and of the harness code version: equal fingerprints mean the report would
+    come out the same."""
     from harness.tracking.provenance import git_sha
 
     cols = sorted(c for c in df.columns if c not in ("scene_label",))
     blob = df[cols].sort_values(["variant", "scene", "seed"]).to_csv(index=False) + git_sha()
+    if decided is not None:
+        blob += decided.to_csv(index=False)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -210,17 +223,19 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
             return None
         data = committed.from_committed(data, COMMITTED_REPORTS / name, echo)  # else InputError
     out = Path(reports_root) / name
-    stamp = fingerprint(data.df)
+    # a whole profile asked for (`study report --all --profile quick`, as `make reports`): every
+    # study's verdicts over that profile's runs, not over whatever subset each last ran
+    whole = sel is not None and not (sel.seeds or sel.scenes or sel.variants or sel.overrides)
+    family_profile = sel.profile if whole else None
+    decided = families.study_frame(name, out.parent, profile=family_profile) if data.study.claims else None
+    stamp = fingerprint(data.df, decided)
     if if_changed and (out / FINGERPRINT).is_file() and (out / FINGERPRINT).read_text().strip() == stamp:
         echo(f"{name}: report up to date ({out / 'index.md'})")
         return out / "index.md"
     out.mkdir(parents=True, exist_ok=True)
     data.df.to_csv(out / "runs.csv", index=False)
     main = sections.tables_section(data)
-    # a whole profile asked for (`study report --all --profile quick`, as `make reports`): every
-    # study's verdicts over that profile's runs, not over whatever subset each last ran
-    whole = sel is not None and not (sel.seeds or sel.scenes or sel.variants or sel.overrides)
-    extra = [s for s in (sections.claims_section(data, out, sel.profile if whole else None),
+    extra = [s for s in (sections.claims_section(data, out, family_profile),
                          sections.variance_section(data, out),
                          sections.ladders_section(data, out)) if s is not None]
     (out / "table.md").write_text(main.md + "".join(f"\n## {s.title}\n\n{s.md}\n" for s in extra))

@@ -133,6 +133,19 @@ def test_report_if_changed_skips_only_an_unchanged_report(toy, capsys: pytest.Ca
     assert exc.value.code == 2
 
 
+def test_the_report_stamp_covers_the_decision_over_every_study() -> None:
+    """Another study's new runs can move this page's corrected p-values: the stamp changes with them."""
+    import pandas as pd
+
+    from harness.report.writer import fingerprint
+
+    runs = pd.DataFrame({"variant": ["a"], "scene": ["s"], "seed": [0], "psnr": [30.0]})
+    decided = pd.DataFrame({"id": ["c"], "verdict": ["inconclusive"], "p_adj": [0.20]})
+    assert fingerprint(runs, decided) == fingerprint(runs, decided.copy())
+    assert fingerprint(runs, decided) != fingerprint(runs, decided.assign(p_adj=0.03, verdict="reproduced"))
+    assert fingerprint(runs, decided) != fingerprint(runs)
+
+
 def test_crashed_and_killed_runs_are_failed_then_rerun(workdir: Path) -> None:
     sel = Selection(variants=["baseline"])
     Path("crash_seed1").write_text("")
