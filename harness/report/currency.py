@@ -54,9 +54,9 @@ def expected(runs: int, profile: str, prof: ProfileSpec | None, jobs: int) -> st
 def stale_note(made_by: list[str], current: str, refresh: str, runs: int, when: str) -> list[str]:
     """The Markdown lines a stale page opens with; none when every run was made by ``current`` (or
     a trainer recorded to train the same bits)."""
-    from harness.tracking.provenance import same_bits
+    from harness.tracking.provenance import all_current
 
-    if not made_by or set(made_by) <= same_bits(current):
+    if not made_by or all_current(made_by, current):
         return []
     trainers = ", ".join(f"`{f}`" for f in made_by)
     return [f"**Stale: these numbers are not this checkout's.** Their runs were made by trainer {trainers};"

@@ -48,7 +48,7 @@ from harness.spec.paper_register import Register, Statement
 from harness.spec.study_files import load_register
 from harness.spec.study_schema import CLAIM_GROUPS
 from harness.spec.throughput import MEASURED_JOBS, estimate
-from harness.tracking.provenance import checkout_fingerprint, same_bits
+from harness.tracking.provenance import all_current, checkout_fingerprint
 
 __all__ = ["StudyClaims", "decide_all", "index_markdown", "stale_studies", "write_claims_index"]
 
@@ -64,9 +64,8 @@ STATEMENT_FAMILIES = ("paper", "convention")  # families whose rows are the regi
 def stale_studies(entries: list[StudyClaims], current: str) -> list[tuple[str, str]]:
     """(study, why) for every study whose runs were not all made by the trainer ``current`` (or one
     recorded to train the same bits, ``tracking.provenance.same_bits``)."""
-    same = same_bits(current)
     return [(e.study, ", ".join(e.fingerprints) or "none recorded") for e in entries
-            if not set(e.fingerprints) <= same]
+            if not all_current(e.fingerprints, current)]
 
 
 def _ours(r: pd.Series) -> str:
@@ -229,7 +228,7 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
                   ""]
     codes = sorted({c[:7] for e in entries for c in e.code.split(", ") if c})
     same = (" (the commits differ outside the trainer)" if len(codes) > 1 else "") if len(prints) == 1 else ""
-    one_bits = len(prints) > 1 and bool(current) and set(prints) <= same_bits(current)
+    one_bits = len(prints) > 1 and bool(current) and all_current(prints, current)
     if one_bits:
         same = (f" (recorded to train the same bits as `{current}`: `harness/tracking/same_bits.yaml`, each record"
                 " with the `study check` that showed it)")
@@ -246,7 +245,7 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
 def refresh(entries: list[StudyClaims], current: str, studies_dir: Path | None = None) -> tuple[int, str]:
     """What ``make reports`` would run when some runs are not ``current``'s (its plan:
     ``currency.plan_frame``), and how long that takes here; (0, "") when all are current."""
-    if {f for e in entries for f in e.fingerprints} <= same_bits(current):
+    if all_current((f for e in entries for f in e.fingerprints), current):
         return 0, ""
     runs = int(plan_frame(studies_dir=studies_dir, trainer=current).to_run.sum())
     return runs, estimate(runs, MEASURED_JOBS).text()

@@ -150,13 +150,14 @@ def tables_section(data: ReportData) -> TablesSection:
     return TablesSection(tabs, summaries, "\n".join(md), "\n".join(tex))
 
 
-def claims_section(data: ReportData, out: Path, profile: str | None = None) -> Section | None:
-    """The study's claims tested on its runs, with the verdicts of the decision over every study
-    (``report.families``: the same as ``reports/index.md``'s, every study read at ``profile`` when
-    given); ``claims.csv``, a scatter per existential claim."""
+def claims_section(data: ReportData, out: Path, decided: pd.DataFrame | None,
+                   profile: str | None = None) -> Section | None:
+    """The study's claims tested on its runs, with ``decided``, the study's rows of the decision
+    over every study (``report.families.study_frame``: the same as ``reports/index.md``'s, every
+    study read at ``profile`` when given); ``claims.csv``, a scatter per existential claim."""
     if not data.study.claims:
         return None
-    frame = families.study_frame(data.study.name, out.parent, profile=profile)
+    frame = decided
     if frame is None:  # no finished run here or anywhere the index reads: the claims, untested
         frame = verdicts.decide(verdicts.evaluate(registry.add_differences(data.df), data.study.claims,
                                                   data.study.name, load_register()), label=families.EVERY_STUDY)

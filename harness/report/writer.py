@@ -49,7 +49,7 @@ from harness.report import (
 from harness.report.results import ReportData, collect
 from harness.spec.runs import Selection, command_line
 from harness.tracking.conventions import browse_command
-from harness.tracking.provenance import checkout_fingerprint, git_sha, same_bits
+from harness.tracking.provenance import all_current, checkout_fingerprint, git_sha
 from harness.tracking.store import display_uri
 
 
@@ -173,7 +173,7 @@ def stale_lines(data: ReportData) -> list[str]:
     (``report.currency``): who made them, the command that refreshes them and its time here."""
     current = checkout_fingerprint()
     made_by = data.trainer_fingerprints()
-    if not made_by or set(made_by) <= same_bits(current):
+    if not made_by or all_current(made_by, current):
         return []
     name, prof = data.study.name, data.study.profile(data.sel.profile)
     refresh = f"{command_line(name, data.sel)} --rerun-stale && study report {name}"
@@ -235,7 +235,7 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
     out.mkdir(parents=True, exist_ok=True)
     data.df.to_csv(out / "runs.csv", index=False)
     main = sections.tables_section(data)
-    extra = [s for s in (sections.claims_section(data, out, family_profile),
+    extra = [s for s in (sections.claims_section(data, out, decided, family_profile),
                          sections.variance_section(data, out),
                          sections.ladders_section(data, out)) if s is not None]
     (out / "table.md").write_text(main.md + "".join(f"\n## {s.title}\n\n{s.md}\n" for s in extra))

@@ -28,6 +28,7 @@ import hashlib
 import os
 import subprocess
 from pathlib import Path
+from typing import Iterable
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -74,17 +75,27 @@ SAME_BITS = Path(__file__).with_name("same_bits.yaml")
 
 def same_bits_records(path: Path | None = None) -> list[dict]:
     """The records of ``same_bits.yaml`` (``trainer``, ``same_bits_as``, ``change``, ``evidence``, ``date``)."""
+    return list(_records(Path(path or SAME_BITS)))
+
+
+@functools.lru_cache(maxsize=8)
+def _records(path: Path) -> tuple[dict, ...]:
+    """The file read once per process (``study run`` asks about every finished run)."""
     import yaml
 
-    path = Path(path or SAME_BITS)
-    return list(yaml.safe_load(path.read_text()) or []) if path.is_file() else []
+    return tuple(yaml.safe_load(path.read_text()) or []) if path.is_file() else ()
 
 
 def same_bits(trainer: str, path: Path | None = None) -> frozenset[str]:
     """``trainer`` and every earlier trainer fingerprint recorded to train the same bits as it,
     following the records back (A -> B -> C): the trainers whose runs count as ``trainer``'s."""
+    return _same_bits(trainer, Path(path or SAME_BITS))
+
+
+@functools.lru_cache(maxsize=64)
+def _same_bits(trainer: str, path: Path) -> frozenset[str]:
     earlier: dict[str, set[str]] = {}
-    for rec in same_bits_records(path):
+    for rec in _records(path):
         earlier.setdefault(str(rec["trainer"]), set()).add(str(rec["same_bits_as"]))
     found, todo = {trainer}, [trainer]
     while todo:
@@ -93,6 +104,11 @@ def same_bits(trainer: str, path: Path | None = None) -> frozenset[str]:
                 found.add(prior)
                 todo.append(prior)
     return frozenset(found)
+
+
+def all_current(fingerprints: Iterable[str], current: str) -> bool:
+    """Whether every run of these trainer ``fingerprints`` counts as ``current``'s (``same_bits``)."""
+    return set(fingerprints) <= same_bits(current)
 
 
 CHECKOUT_FINGERPRINT = "FTGSPP_CHECKOUT_FINGERPRINT"
