@@ -42,10 +42,12 @@ class ModelConfig:
     gate_gamma: float = 20.0
     gate_init: float = -1.0
     color_correction: bool = False
-    cc_start_iter: int = 3_000
-    # the colour-correction gauge: "free" (the official code) or "mean_identity" (the mean of the
-    # per-camera transforms pinned to the identity, so they cannot drift together away from the
-    # uncorrected held-out camera)
+    # the iteration colour correction switches on at; None: 10 % of the iterations, the paper's
+    # 3,000 of 30,000 (``cc_start``)
+    cc_start_iter: int | None = None
+    # the colour-correction gauge: "free" (the paper and the official code) or "mean_identity" (the
+    # mean of the per-camera transforms pinned to the identity, so they cannot drift together away
+    # from the uncorrected held-out camera; an option the collapse study measures)
     cc_gauge: str = "free"
 
 
@@ -57,6 +59,11 @@ class InitConfig:
     neighbor_cams: int = 2  # each view is matched to its k nearest cameras
     matcher: str = "sift"  # sift (sparse features) | dense (flow between views: ftgspp/init/dense.py)
     candidates_per_frame: int | None = None  # dense: points kept per keyframe (None: the paper's ~0.5 per pixel)
+    # dense: when its points are not trusted (ftgspp/init/dense.py, docs/init.md). "min_size": the SIFT
+    # matcher (then the budget fill) replaces it on a scene whose training views' shorter side is under
+    # dense.DENSE_MIN_SIDE_PX, where the flow's points were measured wrong in depth; "off": always dense
+    # (the behaviour before this option existed)
+    dense_check: str = "min_size"
     max_features: int = 4_000  # SIFT features per image
     ratio_test: float = 0.75
     max_reproj_px: float = 2.0
@@ -121,7 +128,9 @@ class LearningRates:
     cc: float = 1e-3
     means_final_ratio: float = 0.01  # exponential decay of means and velocity over training
     scale: float = 1.0  # global multiplier (stability studies)
-    cc_scaled: bool = True  # whether ``scale`` multiplies the colour correction's rate too
+    # whether ``scale`` multiplies the colour correction's own rate too: the paper's CC keeps its rate
+    # (False); True is an option the collapse study measures
+    cc_scaled: bool = False
 
 
 @dataclass
@@ -176,6 +185,14 @@ class TrainConfig:
     out_dir: str = "."
     resume: bool = True
     progress: bool = True
+
+
+def cc_start(cfg: TrainConfig) -> int:
+    """The iteration colour correction switches on at: ``model.cc_start_iter``, or 10 % of the
+    iterations when it is None (the paper: 3,000 of 30,000)."""
+    if cfg.model.cc_start_iter is not None:
+        return int(cfg.model.cc_start_iter)
+    return cfg.iterations // 10
 
 
 def _fill(cls, data: dict):

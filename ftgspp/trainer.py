@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from ftgspp.checkpoint import save_config, save_model
 from ftgspp.colour_correction import ColorCorrection
-from ftgspp.config import TrainConfig
+from ftgspp.config import TrainConfig, cc_start
 from ftgspp.data.scene import Scene
 from ftgspp.diagnostics.diagnose import run_diagnostics
 from ftgspp.errors import InputError
@@ -239,7 +239,7 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
         bg = torch.rand(3, device=device) if cfg.random_background else background
         out, g = render_view(st.model, scene.cameras[cam_idx], float(scene.times[frame]), sh_degree_at(cfg, it),
                              background=bg, backend=cfg.backend)
-        use_cc = st.cc is not None and step > cfg.model.cc_start_iter
+        use_cc = st.cc is not None and step > cc_start(cfg)
         image = st.cc(out.image, train_slot[cam_idx]) if use_cc else out.image
         terms = loss_terms(cfg, st.model, g, image, gt, st.cc if use_cc else None, lpips_net)
         loss = terms["total"]

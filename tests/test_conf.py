@@ -81,3 +81,33 @@ def test_every_group_option_composes() -> None:
         overrides = [f"{g}={c}" for g, c in zip(options, choice)] + ["data.path=/scene"]
         cfg = to_train_config(compose(overrides))
         assert cfg.data.path == "/scene" and cfg.profile == choice[GROUPS.index("profile")]
+
+
+def test_every_profile_trains_the_papers_colour_correction():
+    """Issue 54: identity start, regularised toward it (1e-3), the free gauge, CC's own rate not
+    multiplied by lr.scale, switched on at 10 % of the iterations: in the composed quick and paper
+    configs of FreeTimeGS++, and in the optimiser the trainer builds from the quick one."""
+    import numpy as np
+    import torch
+
+    from ftgspp.colour_correction import ColorCorrection
+    from ftgspp.config import cc_start
+    from ftgspp.methods import method_class
+    from ftgspp.train_state import make_optimizer
+
+    for profile, iterations in (("quick", 3_000), ("paper", 30_000)):
+        cfg = to_train_config(compose([f"profile={profile}", "model=ftgspp"]))
+        assert cfg.iterations == iterations and cfg.model.color_correction
+        assert cfg.model.cc_gauge == "free" and not cfg.lr.cc_scaled and cfg.loss.cc_reg == 1e-3
+        assert cc_start(cfg) == iterations // 10  # the paper: on at iteration 3,000 of 30,000
+    quick = to_train_config(compose(["profile=quick", "model=ftgspp"]))
+    assert quick.lr.scale == 8.0
+    rng = np.random.default_rng(0)
+    model = method_class(quick.model.method).from_points(
+        rng.random((20, 3)), rng.random((20, 3)), np.zeros(20), np.zeros((20, 3)), np.full(20, 0.1), quick.model,
+        quick.init)
+    cc = ColorCorrection(3, "cpu", quick.model.cc_gauge)
+    assert torch.equal(cc.delta, torch.zeros(3, 3, 3)) and not cc.bias.any()  # the identity at the start
+    groups = {g["name"]: g["lr"] for g in make_optimizer(model, cc, quick, extent=1.0).param_groups}
+    assert groups["cc"] == quick.lr.cc  # its own rate, while every other rate is x lr.scale
+    assert groups["quats"] == quick.lr.quats * quick.lr.scale

@@ -147,7 +147,11 @@ def test_learning_rates_scale_with_extent_and_decay_to_the_final_ratio(tiny_scen
     lr = {g["name"]: g["lr"] for g in opt.param_groups}
     assert lr["means"] == pytest.approx(1.6e-4 * 3.0 * 2.5) and lr["velocities"] == pytest.approx(1.6e-3 * 3.0 * 2.5)
     assert lr["opacities"] == pytest.approx(5e-2 * 3.0) and lr["shN"] == pytest.approx(1.25e-4 * 3.0)
-    assert lr["cc"] == pytest.approx(1e-3 * 3.0) and "gates" not in lr  # no gate: not optimised
+    assert lr["cc"] == pytest.approx(1e-3) and "gates" not in lr  # CC keeps its own rate; no gate: not optimised
+    cfg.lr.cc_scaled = True  # the option the collapse study measures: lr.scale multiplies CC's rate too
+    assert {g["name"]: g["lr"] for g in make_optimizer(model, cc, cfg, extent=2.5).param_groups}["cc"] == \
+        pytest.approx(1e-3 * 3.0)
+    cfg.lr.cc_scaled = False
     set_learning_rates(opt, 100, cfg)  # half way: sqrt of the final ratio 0.01
     mid = {g["name"]: g["lr"] for g in opt.param_groups}
     assert mid["means"] == pytest.approx(lr["means"] * 0.1) and mid["velocities"] == pytest.approx(lr["velocities"] * 0.1)

@@ -93,22 +93,42 @@ def tost_ind(a: np.ndarray, b: np.ndarray, sesoi: float) -> float:
     return float(ttost_ind(np.asarray(a, float), np.asarray(b, float), -sesoi, sesoi, usevar="unequal")[0])
 
 
+def t_power(sesoi: float, sd: float, n: int, paired: bool, alpha: float = ALPHA) -> float:
+    """Power of the two-sided paired/one-sample t (``paired``) or two-sample t with ``n`` pairs or
+    runs per arm when the true effect is ``sesoi`` (statsmodels, at a whole ``n``)."""
+    from statsmodels.stats.power import TTestIndPower, TTestPower
+
+    solver = TTestPower() if paired else TTestIndPower()
+    return float(solver.power(sesoi / sd, n, alpha, alternative="two-sided"))
+
+
 def n_for_t(sesoi: float, sd: float, paired: bool, alpha: float = ALPHA) -> float:
     """Pairs (``paired``: one-sample/paired t) or runs per arm (Welch ≈ two-sample t) for 80%
     power of a two-sided test at ``alpha`` when the true effect is ``sesoi``; ``sd`` is the SD of
-    the paired differences (or the pooled SD of the runs). inf when it exceeds N_MAX."""
-    from statsmodels.stats.power import TTestIndPower, TTestPower
+    the paired differences (or the pooled SD of the runs). inf when it exceeds N_MAX.
 
+    A search over whole run counts with statsmodels' power: its ``solve_power`` root-finds over a
+    continuous n, where scipy's noncentral t returns NaN at some non-integer n and the solver then
+    stops early (it gave 6 pairs for ablation.gate_improves where 7 are needed; tests/harness)."""
     if not (sd > 0 and sesoi > 0):
         return math.nan
-    solver = TTestPower() if paired else TTestIndPower()
-    with warnings.catch_warnings():  # no root within the solver's bounds: "more than N_MAX"
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        try:
-            n = float(solver.solve_power(effect_size=sesoi / sd, alpha=alpha, power=POWER, alternative="two-sided"))
-        except Exception:
+        def enough(n: int) -> bool:
+            power = t_power(sesoi, sd, n, paired, alpha)
+            # scipy's noncentral t also returns NaN far out in its tail, at large n·(sesoi/sd)²,
+            # where the power is 1 to many digits
+            return math.isnan(power) or power >= POWER
+
+        if not enough(N_MAX):
             return math.inf
-    return float(math.ceil(n)) if math.isfinite(n) and n <= N_MAX else math.inf
+        lo, hi = 1, 2  # power at lo is below POWER (a t-test needs 2 runs an arm)
+        while not enough(hi):
+            lo, hi = hi, min(2 * hi, N_MAX)
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (lo, mid) if enough(mid) else (mid, hi)
+    return float(hi)
 
 
 def levene_median_p(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -134,9 +134,10 @@ def _resolve(f: StudySpec, path: Path) -> StudySpec:
             profiles[name] = p = dataclasses.replace(p, baseline=f.baseline)
         require(p.baseline in p.variants, f"{where}: baseline", f"'{p.baseline}' is not a variant of {p.name}")
     all_variants = {v for p in profiles.values() for v in p.variants}
+    all_scenes = {sc.name for p in profiles.values() for sc in p.scenes}
     return dataclasses.replace(
         f, question=" ".join(f.question.split()), notes=" ".join(f.notes.split()), path=path, profiles=profiles,
-        variants=variants, claims=_claims(f.claims, f"{where}: claims", all_variants),
+        variants=variants, claims=_claims(f.claims, f"{where}: claims", all_variants, all_scenes),
         variance=_variance(f.variance, f"{where}: variance_components", all_variants))
 
 
@@ -272,9 +273,10 @@ def _variance(v: VarianceSpec | None, where: str, variants: set[str]) -> Varianc
     return v
 
 
-def _claims(claims: tuple[ClaimSpec, ...], where: str, variants: set[str]) -> tuple[ClaimSpec, ...]:
-    """Check a study's ``claims:`` (variants: those of any profile) and fill in each claim's
-    smallest effect of interest from the metric registry."""
+def _claims(claims: tuple[ClaimSpec, ...], where: str, variants: set[str], scenes: set[str]
+            ) -> tuple[ClaimSpec, ...]:
+    """Check a study's ``claims:`` (variants and scenes: those of any profile) and fill in each
+    claim's smallest effect of interest from the metric registry."""
     out: list[ClaimSpec] = []
     for c in claims:
         at = f"{where}.{c.id}"
@@ -289,8 +291,16 @@ def _claims(claims: tuple[ClaimSpec, ...], where: str, variants: set[str]) -> tu
             require(v in variants, at, f"unknown variant '{v}' (have {', '.join(sorted(variants))})")
         require(not c.among or (c.test in (Comparison.decoupled, Comparison.dissociated) and len(c.among) >= 2),
                 f"{at}.among", "only a decoupled or dissociated claim searches 'among' variants (two or more)")
+        # a claim's scope is fixed when it is registered: its scenes and its arms, named in the claim,
+        # so adding a scene or a variant to the study later cannot widen it (tests/harness/test_claim_scopes.py)
+        require(bool(c.scenes), f"{at}.scenes", "name the claim's scenes (scenes: [...]): a claim's scope is fixed"
+                " when it is registered, so a scene added to the study later cannot join it")
+        for sc in c.scenes:  # a withdrawn claim may name a scene the study no longer runs
+            require(sc in scenes or bool(c.withdrawn), f"{at}.scenes", f"unknown scene '{sc}' (have {', '.join(sorted(scenes))})")
         if c.test in (Comparison.decoupled, Comparison.dissociated):
             require(bool(c.versus), at, f"a {c.test} claim needs 'versus' (the metric that differs)")
+            require(len(c.among) >= 2, f"{at}.among", f"name the variants a {c.test} claim searches (among: [...],"
+                    " two or more): its arms are fixed when it is registered")
         elif c.test == Comparison.contrast:
             require(bool(c.contrasts) and all(isinstance(k, (int, float)) for w in c.contrasts for _, k in w)
                     and all(abs(sum(k for _, k in w)) < 1e-9 for w in c.contrasts), f"{at}.contrasts",

@@ -116,13 +116,14 @@ MINI_STUDY = {
     "plots": [],
     "claims": [
         {"id": "cc_mean", "claim": "CC raises PSNR.", "metric": "psnr", "test": "mean", "a": "cc", "b": "baseline",
-         "expect": "higher", "pair": "none"},
+         "scenes": ["easy"], "expect": "higher", "pair": "none"},
         {"id": "cc_spread", "claim": "CC lowers the spread.", "metric": "psnr", "test": "variance", "a": "cc",
-         "b": "baseline", "expect": "lower"},
+         "b": "baseline", "scenes": ["easy"], "expect": "lower"},
         {"id": "motion", "claim": "Not logged by the fake.", "metric": "flicker_static", "test": "mean", "a": "cc",
-         "b": "baseline", "expect": "lower", "group": "extension"},
+         "b": "baseline", "scenes": ["easy"], "expect": "lower", "group": "extension"},
         {"id": "psnr_ssim", "claim": "Some pair has equal PSNR but different SSIM.", "metric": "psnr",
-         "versus": "ssim1", "test": "decoupled", "expect": "exists"},
+         "versus": "ssim1", "test": "decoupled", "expect": "exists", "scenes": ["easy"],
+         "among": ["baseline", "cc"]},
     ],
     "profiles": {
         "quick": {"seeds": 3, "overrides": ["profile=smoke"], "run_seconds": 5, "command": "study run mini",

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import math
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -115,6 +117,24 @@ def test_pure_noise_errs_at_the_expected_rate():
     assert rate[V.REPRODUCED] == pytest.approx(0.025, abs=0.01)
     assert rate[V.CONTRADICTED] == pytest.approx(0.025, abs=0.01)
     assert rate[V.INCONCLUSIVE] == pytest.approx(0.95, abs=0.015)
+
+
+def test_runs_needed_where_statsmodels_solver_stops_early():
+    # ablation.gate_improves (issue 54): SESOI 0.2 dB, paired SD 0.07, alpha 0.05/39. statsmodels'
+    # solve_power root-finds over a continuous n, where scipy's noncentral t returns NaN (at 5.5,
+    # say), and stops at 5.2 (shown as 6). The oracle: simulated paired t-tests at n - 1 and n.
+    sesoi, sd, alpha = 0.2, 0.0699934293760376, 0.05 / 39
+    n = int(S.n_for_t(sesoi, sd, paired=True, alpha=alpha))
+    assert n == 7
+    rng = np.random.default_rng(54)
+
+    def simulated(k: int) -> float:
+        d = rng.normal(sesoi, sd, (20_000, k))
+        return float((stats.ttest_1samp(d, 0.0, axis=1).pvalue < alpha).mean())
+
+    assert simulated(n) >= 0.8 > simulated(n - 1)  # about 0.87 and 0.65
+    # far out in the noncentral t's tail scipy returns NaN too; there the power is 1
+    assert S.n_for_t(0.2, 0.3, paired=False) == 37 and S.n_for_t(0.2, 30.0, paired=False) == math.inf
 
 
 def test_prospective_power_is_for_the_sesoi_not_the_observed_effect():
@@ -284,7 +304,7 @@ def _study_with(tmp_path: Path, claims: list[dict]) -> Path:
 
 
 GOOD = {"id": "cc_mean", "claim": "CC raises PSNR.", "metric": "psnr", "test": "mean", "a": "cc", "b": "baseline",
-        "expect": "higher"}
+        "scenes": ["easy"], "expect": "higher"}
 
 
 def test_claims_load_as_data_with_the_metric_registrys_smallest_effect(tmp_path: Path):
@@ -307,8 +327,10 @@ def test_claims_load_as_data_with_the_metric_registrys_smallest_effect(tmp_path:
     ({"sesoi": 0.34}, "unknown key(s) sesoi"),  # fixed per metric in the registry, never per claim
     ({"metric": "n_gaussians"}, "no smallest effect of interest"),
     ({"group": "mine"}, "unknown group 'mine'"),
-    ({"test": "interaction", "pairs": [["cc", "baseline"]], "a": "", "b": "", "scenes": ["easy", "hard"]},
+    ({"test": "interaction", "pairs": [["cc", "baseline"]], "a": "", "b": "", "scenes": ["easy", "real"]},
      "one [a, b] per scene"),
+    ({"scenes": []}, "name the claim's scenes"),
+    ({"scenes": ["hard"]}, "unknown scene 'hard'"),
     ({"requires": [{"metric": "flicker_static"}]}, "give either min or above"),
     ({"test": "interaction", "scenes": ["easy"]}, "exactly two scenes"),
     ({"colour": 1}, "unknown key(s) colour"),
