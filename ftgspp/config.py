@@ -59,11 +59,12 @@ class InitConfig:
     neighbor_cams: int = 2  # each view is matched to its k nearest cameras
     matcher: str = "sift"  # sift (sparse features) | dense (flow between views: ftgspp/init/dense.py)
     candidates_per_frame: int | None = None  # dense: points kept per keyframe (None: the paper's ~0.5 per pixel)
-    # dense: when its points are not trusted (ftgspp/init/dense.py, docs/init.md). "min_size": the SIFT
-    # matcher (then the budget fill) replaces it on a scene whose training views' shorter side is under
-    # dense.DENSE_MIN_SIDE_PX, where the flow's points were measured wrong in depth; "off": always dense
-    # (the behaviour before this option existed)
-    dense_check: str = "min_size"
+    # dense: when its points are not trusted (ftgspp/init/dense.py, docs/init.md). "auto": the SIFT matcher
+    # (then the budget fill) replaces it for the run when the dense points of a median keyframe reach fewer
+    # than dense.COVERAGE_MIN of the cells of a grid over the training views, or when the dense flow's depth
+    # at SIFT's keypoints is off SIFT's by a median over dense.AGREEMENT_MAX; "off": always the dense points
+    # (the behaviour before this option)
+    dense_check: str = "auto"
     max_features: int = 4_000  # SIFT features per image
     ratio_test: float = 0.75
     max_reproj_px: float = 2.0

@@ -261,9 +261,12 @@ def test_run_diagnostics_writes_readable_outputs(tmp_path):
     cfg.model.sh_degree = 0
     res = run_diagnostics(model, scene, cfg, tmp_path / "diag", frame=1)
     names = {"lifetime_histogram", "lifetime_groups", "velocity_map", "xt_slice", "motion_error", "json"}
-    assert set(res.files) == names
-    for path in res.files.values():
-        assert Path(path).is_file() and Path(path).stat().st_size > 1000
+    assert set(res.files) == names | {"xt_slice_arrays"}
+    for name, path in res.files.items():
+        assert Path(path).is_file() and Path(path).stat().st_size > (100 if name == "xt_slice_arrays" else 1000)
+    with np.load(res.files["xt_slice_arrays"]) as xt:  # the figure's arrays: recorded frames' middle row, render's
+        np.testing.assert_array_equal(xt["gt"], scene.frames(0)[:, H // 2])
+        assert xt["render"].shape == (4, scene.cameras[0].width, 3) and int(xt["row"]) == H // 2 and "gt_clean" not in xt
     saved = json.loads((tmp_path / "diag" / "diagnostics.json").read_text())
     assert saved["lifetime"]["n_short_lived"] == int(is_obj.sum())
     assert saved["lifetime"]["n_long_lived"] == int((~is_obj).sum())
@@ -274,10 +277,12 @@ def test_run_diagnostics_writes_readable_outputs(tmp_path):
     assert saved["motion"]["epe_dynamic"] < 0.1 * np.linalg.norm(V_OBJ)
     # without figures: the same numbers, only diagnostics.json written
     bare = run_diagnostics(model, scene, cfg, tmp_path / "bare", frame=1, figures=False)
-    assert set(bare.files) == {"json"} and sorted(p.name for p in (tmp_path / "bare").iterdir()) == ["diagnostics.json"]
+    assert set(bare.files) == {"json", "xt_slice_arrays"}  # the arrays are kept without figures too
+    assert sorted(p.name for p in (tmp_path / "bare").iterdir()) == ["diagnostics.json", "xt_slice.npz"]
     np.testing.assert_equal(bare.metrics(), res.metrics())  # NaN where a score has no pixels
     bare_saved = json.loads((tmp_path / "bare" / "diagnostics.json").read_text())
-    assert bare_saved.pop("files") == {} and bare_saved == {k: v for k, v in saved.items() if k != "files"}
+    assert bare_saved.pop("files") == {"xt_slice_arrays": str(tmp_path / "bare" / "xt_slice.npz")}
+    assert bare_saved == {k: v for k, v in saved.items() if k != "files"}
 
 
 def test_diagnose_cli_on_a_generated_scene(tmp_path, capsys):
@@ -296,7 +301,7 @@ def test_diagnose_cli_on_a_generated_scene(tmp_path, capsys):
     torch.save({k: v.detach() for k, v in model.params.items()}, run / "gaussians.pt")
     assert main([str(run), "--theta", "0.1", "--frame", "1"]) == 0
     printed = capsys.readouterr().out.split()
-    assert len(printed) == 6 and all(Path(p).is_file() for p in printed)
+    assert len(printed) == 7 and all(Path(p).is_file() for p in printed)
     assert Path(printed[0]).parent == run / "diagnostics"
     saved = json.loads((run / "diagnostics" / "diagnostics.json").read_text())
     assert saved["theta"] == 0.1 and saved["frame"] == 1 and "motion" in saved

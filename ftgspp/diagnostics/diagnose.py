@@ -4,14 +4,19 @@
 numbers as a ``DiagnosticsResult`` (``.metrics()``: the names a training run logs them under):
 
 - lifetime histogram of Δt/T and **group renders**: the full render next to renders of only
-  the short-lived (Δt/T < split) and only the long-lived Gaussians
-  (``lifetimes``);
+  the short-lived (Δt/T < split) and only the long-lived Gaussians, and the histogram's
+  **dip test** (``lifetime_dip``, ``lifetime_dip_p``, ``lifetime_dip_excess``: secret 1's
+  "distinct short- and long-lived groups") (``lifetimes``);
 - **velocity map** shown like optical flow (hue = direction, value = speed) next to the RGB
-  render, **x–t slice** of ground truth and render, and on scenes with ``gt/`` the
-  **motion error** (``motion``);
+  render, **x–t slice** of ground truth (noise-free where the scene has ``gt/clean/``) and
+  render, its arrays kept in ``xt_slice.npz`` (written with or without figures), and on
+  scenes with ``gt/`` the **motion error** (``motion``);
 - on scenes with ``gt/``, **scores against the ground-truth masks** (``scores``):
   ``lifetime_partition_contrast`` (secret 1), ``motion_role_switch`` (secret 2) and
-  ``flicker_static`` (secret 4), from ``ground_truth_scores``.
+  ``flicker_static`` (secret 4), from ``ground_truth_scores``; against the noise-free frames
+  ``flicker_static_gt`` and ``flicker_static_excess``; on scenes drawn from known Gaussians
+  (``gt/gaussians.npz``, ``truth``) the truth's own ``motion_role_switch_gt`` and
+  ``motion_role_switch_excess`` = model − truth.
 
 The figures are drawn by ``figures``. Run on a finished training run
 (``config.json`` + ``gaussians.pt``)::
@@ -36,6 +41,8 @@ import torch
 from ftgspp.config import TrainConfig
 from ftgspp.data.scene import Scene
 from ftgspp.diagnostics.lifetimes import (
+    drawn_in_clip,
+    lifetime_dip,
     lifetime_fractions,
     lifetime_histogram,
     lifetime_vs_objects,
@@ -47,6 +54,7 @@ from ftgspp.diagnostics.lifetimes import (
 from ftgspp.diagnostics.motion import (
     ALPHA_MIN,
     GroundTruth,
+    load_clean_frames,
     load_ground_truth,
     render_frames,
     scene_motion_error,
@@ -54,6 +62,7 @@ from ftgspp.diagnostics.motion import (
     velocity_map,
     xt_slice,
 )
+from ftgspp.diagnostics.truth import load_true_model
 from ftgspp.errors import InputError
 from ftgspp.evaluate import HeldOutRenders
 from ftgspp.methods.base import DynamicGaussians
@@ -62,10 +71,17 @@ log = logging.getLogger("ftgspp.diagnostics")
 
 
 def ground_truth_scores(model: DynamicGaussians, scene: Scene, cam: int, gt: GroundTruth, short: np.ndarray,
-                        frames: np.ndarray, backend: str = "auto") -> dict[str, float]:
+                        frames: np.ndarray, backend: str = "auto", truth: DynamicGaussians | None = None,
+                        clean: np.ndarray | None = None) -> dict[str, float]:
     """Partition, role-switch and flicker scores of ``model`` in camera ``cam`` over every
     loaded frame; ``short [N]`` marks the short-lived Gaussians, ``frames [F, H, W, 3]`` the
-    renders. Keys are the names the trainer logs them under."""
+    renders. Keys are the names the trainer logs them under.
+
+    ``truth``: the scene's true Gaussians as a model (``truth.load_true_model``), scored the
+    same way (``motion_role_switch_gt``, and the model's excess over it). ``clean``: the
+    camera's noise-free frames, uint8 ``[F, H, W, 3]`` (``motion.load_clean_frames``), the
+    reference of ``flicker_static_gt`` and ``flicker_static_excess``; the flicker of the
+    recorded frames (sensor noise, codec) is ``flicker_static_gt_noisy`` either way."""
     def masks(f: int) -> np.ndarray:  # moving objects, static pixels (, transient objects)
         m = [gt.objects[f] > 0, gt.objects[f] == 0]
         return np.stack(m if gt.transient is None else [*m, gt.transient[f]])
@@ -76,14 +92,23 @@ def ground_truth_scores(model: DynamicGaussians, scene: Scene, cam: int, gt: Gro
     part = partition_scores(w[..., 0].sum(axis=0), w[..., 1].sum(axis=0), short)
     flicker = static_flicker(frames, gt.objects)
     gt_frames = scene.frames(cam).astype(np.float32) / 255.0
+    switch = role_switch_score(w[..., 0])
     scores = {
         "lifetime_partition_contrast": part["partition_contrast"],
         "lifetime_short_share_dynamic": part["short_share_dynamic"],
         "lifetime_short_share_static": part["short_share_static"],
-        "motion_role_switch": role_switch_score(w[..., 0]),
+        "motion_role_switch": switch,
         "flicker_static": flicker["flicker"],
-        "flicker_static_gt": static_flicker(gt_frames, gt.objects)["flicker"],
+        "flicker_static_gt_noisy": static_flicker(gt_frames, gt.objects)["flicker"],
     }
+    if clean is not None:  # the reference without sensor noise and codec: what a perfect render would score
+        scores["flicker_static_gt"] = static_flicker(clean.astype(np.float32) / 255.0, gt.objects)["flicker"]
+        scores["flicker_static_excess"] = scores["flicker_static"] - scores["flicker_static_gt"]
+    if truth is not None:  # the level of "no role switching": the true Gaussians through the same scoring
+        w_true = np.stack([mask_weights(truth, scene.cameras[cam], float(t), (gt.objects[f] > 0)[None], backend)[:, 0]
+                           for f, t in enumerate(scene.times)])  # [F, K]
+        scores["motion_role_switch_gt"] = role_switch_score(w_true)
+        scores["motion_role_switch_excess"] = switch - scores["motion_role_switch_gt"]
     if gt.transient is not None and gt.transient.any():  # content that exists for part of the clip
         split = partition_scores(w[..., 2].sum(axis=0), w[..., 1].sum(axis=0), short)
         scores["lifetime_short_share_transient"] = split["short_share_dynamic"]
@@ -114,6 +139,9 @@ class DiagnosticsResult:
             "lifetime_long_on_static": self.lifetime.get("long_lived_on_static"),
             "lifetime_short_on_dynamic": self.lifetime.get("short_lived_on_dynamic"),
             "lifetime_median_fraction": self.lifetime.get("median_fraction"),
+            "lifetime_dip": self.lifetime.get("dip"),
+            "lifetime_dip_p": self.lifetime.get("dip_p"),
+            "lifetime_dip_excess": self.lifetime.get("dip_excess"),
             "motion_epe_dynamic": motion.get("epe_dynamic"),
             "motion_leak_static": motion.get("leak_static"),
             "xt_slice_mae": self.xt_slice_mae,
@@ -196,6 +224,10 @@ def run_diagnostics(
         "n_persistent": int(np.isinf(frac).sum()),
         "median_fraction": float(np.median(frac)) if len(frac) else float("nan"),
     }
+    dip = lifetime_dip(frac, drawn_in_clip(model, theta, scene.times))
+    lifetime["n_drawn"] = dip["n"]
+    if dip["n"] > 3:  # the dip test is not defined below 4 values: left out
+        lifetime.update(dip=dip["dip"], dip_p=dip["p"], dip_critical=dip["critical"], dip_excess=dip["excess"])
     draw("lifetime_histogram", plots.plot_lifetime_histogram,
          counts, edges, frac, split, theta, scene.duration, out / "lifetime_histogram.png")
 
@@ -219,11 +251,17 @@ def run_diagnostics(
     velocity = {"mean": float(speed.mean()) if speed.size else 0.0,
                 "p99": float(np.percentile(speed, 99)) if speed.size else 0.0}
 
-    # x–t slice
-    gt_xt = xt_slice(scene.frames(cam_i), row).astype(np.float32) / 255.0
+    # x–t slice: against the noise-free frames where the scene has them (the arrays are kept either way)
+    recorded_xt = xt_slice(scene.frames(cam_i), row)  # uint8 [F, W, 3]
+    gt_xt = recorded_xt.astype(np.float32) / 255.0
+    clean = load_clean_frames(scene, cam_i)
+    clean_xt = None if clean is None else xt_slice(clean, row)
     all_frames = frames_at(list(range(scene.n_frames)))  # [F, H, W, 3]
     render_xt = xt_slice(all_frames, row)
-    draw("xt_slice", plots.plot_xt_slice, gt_xt, render_xt, cam.name, row, scene.fps, out / "xt_slice.png")
+    files["xt_slice_arrays"] = save_xt_arrays(out / "xt_slice.npz", render_xt, recorded_xt, clean_xt, row, cam.name,
+                                              scene.fps)
+    ref_xt, ref_name = (gt_xt, "ground truth") if clean_xt is None else (clean_xt / 255.0, "noise-free ground truth")
+    draw("xt_slice", plots.plot_xt_slice, ref_xt, render_xt, cam.name, row, scene.fps, out / "xt_slice.png", ref_name)
     result = DiagnosticsResult(camera=cam.name, frame=frame, theta=theta, split=split, row=row, lifetime=lifetime,
                                velocity_px_per_frame=velocity, xt_slice_mae=float(np.abs(gt_xt - render_xt).mean()),
                                files=files)  # fmt: skip
@@ -242,7 +280,9 @@ def run_diagnostics(
             if g is not None:
                 gts[c] = g
         lifetime.update(lifetime_vs_objects(model, scene, gts, frac, split))
-        result.scores = ground_truth_scores(model, scene, cam_i, gt, frac < split, all_frames, backend)
+        truth = load_true_model(scene, model.params["means"].device)
+        result.scores = ground_truth_scores(model, scene, cam_i, gt, frac < split, all_frames, backend, truth=truth,
+                                            clean=clean)
 
     (out / "diagnostics.json").write_text(json.dumps(result.as_json(), indent=2))
     files["json"] = out / "diagnostics.json"
@@ -251,6 +291,20 @@ def run_diagnostics(
              "; motion EPE %.4f, static leak %.4f" % (motion["epe_dynamic"], motion["leak_static"])
              if gt is not None else "")  # fmt: skip
     return result
+
+
+def save_xt_arrays(path: Path, render: np.ndarray, recorded: np.ndarray, clean: np.ndarray | None, row: int,
+                   camera: str, fps: float) -> Path:
+    """``xt_slice.npz``: the x–t slice arrays the figure draws, for reports that compare runs
+    (``harness/report/xt_figures.py``): ``render`` float16 ``[F, W, 3]`` in [0, 1], ``gt`` the
+    recorded frames' slice and, where the scene has them, ``gt_clean`` the noise-free frames'
+    (uint8 ``[F, W, 3]``), ``row``, ``camera`` and ``fps``."""
+    arrays = {"render": np.asarray(render, dtype=np.float16), "gt": np.asarray(recorded, dtype=np.uint8),
+              "row": np.int64(row), "camera": np.str_(camera), "fps": np.float64(fps)}
+    if clean is not None:
+        arrays["gt_clean"] = np.asarray(clean, dtype=np.uint8)
+    np.savez_compressed(path, **arrays)
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:

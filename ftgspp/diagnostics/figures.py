@@ -93,18 +93,20 @@ def plot_velocity_map(rgb: np.ndarray, flow: np.ndarray, covered: np.ndarray, wh
     return _save(fig, path)
 
 
-def plot_xt_slice(gt: np.ndarray, render: np.ndarray, cam: str, row: int, fps: float, path: Path) -> Path:
-    """Ground truth | render | |difference| of one image row over time (time goes down)."""
+def plot_xt_slice(gt: np.ndarray, render: np.ndarray, cam: str, row: int, fps: float, path: Path,
+                  gt_name: str = "ground truth") -> Path:
+    """Ground truth | render | |difference| of one image row over time (time goes down);
+    ``gt_name`` says which ground truth (e.g. the noise-free frames)."""
     n_frames, width = gt.shape[:2]
     ext = (-0.5, width - 0.5, n_frames - 0.5, -0.5)
     diff = np.abs(gt - render).mean(axis=-1)
     height = float(np.clip(4.3 * n_frames / width, 2.5, 8.0)) + 1.0  # frames stretched to stay readable
     fig, axes = plt.subplots(1, 3, figsize=(13, height), constrained_layout=True)
-    for ax, img, name in ((axes[0], gt, "ground truth"), (axes[1], render, "render")):
+    for ax, img, name in ((axes[0], gt, gt_name), (axes[1], render, "render")):
         ax.imshow(np.clip(img, 0, 1), extent=ext, aspect="auto", interpolation="nearest")
         ax.set_title(name, fontsize=9)
     im = axes[2].imshow(diff, extent=ext, aspect="auto", cmap="magma", vmin=0, interpolation="nearest")
-    axes[2].set_title("|ground truth − render| (mean over RGB)", fontsize=9)
+    axes[2].set_title(f"|{gt_name} − render| (mean over RGB)", fontsize=9)
     fig.colorbar(im, ax=axes[2], label="absolute error")
     for ax in axes:
         ax.set_xlabel("x (px)")

@@ -9,10 +9,13 @@ and its motion against a synthetic scene's ground truth.
   by alpha where alpha > ``ALPHA_MIN``) against ``gt/flow3d``: mean end-point error on moving
   objects (``gt/objects > 0``) and the mean speed leaking into static regions.
 - **Static flicker** (secret 4): temporal std of the rendered colour on pixels static for
-  the whole clip.
+  the whole clip, against the same measure on the held-out camera's noise-free frames
+  (``gt/clean/<cam>.npy``: the frames before sensor noise and video coding, which a
+  synthetic scene writes for its test camera; ``load_clean_frames``).
 
     flow, alpha = velocity_map(model, cam, t, fps)        # [H, W, 2] px/frame, [H, W]
     gt = load_ground_truth(scene, cam_index)              # None without gt/
+    clean = load_clean_frames(scene, cam_index)           # uint8 [F, H, W, 3], None without gt/clean/
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 
@@ -99,7 +103,7 @@ class GroundTruth:
 
     depth: np.ndarray  # [F, H, W] float32 camera z-depth
     flow3d: np.ndarray  # [F, H, W, 3] float32 world velocity of the visible point, units/s
-    objects: np.ndarray  # [F, H, W] uint8, 0 = static background
+    objects: np.ndarray  # [F, H, W] uint8 or uint16 object labels, 0 = static background
     transient: np.ndarray | None = None  # [F, H, W] bool: an object that exists for part of the clip
 
 
@@ -129,8 +133,29 @@ def load_ground_truth(scene: Scene, cam: int) -> GroundTruth | None:
         if a.shape[1:3] != (c.height, c.width):  # a nearest-neighbour resize is a gather: no per-frame copies
             a = a.take(nearest_indices(a.shape[1], c.height), axis=1).take(nearest_indices(a.shape[2], c.width), axis=2)
         arrays.append(a)
-    return GroundTruth(arrays[0].astype(np.float32), arrays[1].astype(np.float32), arrays[2].astype(np.uint8),
+    objects = arrays[2] if arrays[2].dtype in (np.uint8, np.uint16) else arrays[2].astype(np.uint16)
+    return GroundTruth(arrays[0].astype(np.float32), arrays[1].astype(np.float32), objects,
                        arrays[3] > 0 if len(arrays) > 3 else None)
+
+
+CLEAN_DIR = "clean"  # gt/clean/<cam>.npy: noise-free frames of the held-out camera
+
+
+def load_clean_frames(scene: Scene, cam: int) -> np.ndarray | None:
+    """``gt/clean/<cam>.npy`` (uint8 RGB ``[F, H, W, 3]``, the camera's frames before sensor noise
+    and video coding) cut to the loaded frames and brought to the camera's resolution as the
+    loader brings the video (``cv2.INTER_AREA``), so it lines up with ``scene.frames(cam)``;
+    None when the scene has no such file."""
+    if scene.ground_truth is None:
+        return None
+    c = scene.cameras[cam]
+    path = Path(scene.ground_truth) / CLEAN_DIR / f"{c.name}.npy"
+    if not path.is_file():
+        return None
+    frames = np.asarray(np.load(path, mmap_mode="r")[np.asarray(scene.frame_ids)])
+    if frames.shape[1:3] == (c.height, c.width):
+        return frames
+    return np.stack([cv2.resize(f, (c.width, c.height), interpolation=cv2.INTER_AREA) for f in frames])
 
 
 def motion_error(velocity: np.ndarray, alpha: np.ndarray, gt_flow3d: np.ndarray, objects: np.ndarray,

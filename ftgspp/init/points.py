@@ -2,7 +2,8 @@
 
 For every keyframe (every ``cfg.keyframe_stride``-th loaded frame) and every training camera
 (the held-out test cameras are never read), with ``init.matcher=sift`` (``dense``: the paper's
-dense matching, ftgspp/init/dense.py):
+dense matching, ftgspp/init/dense.py, unless ``init.dense_check`` does not trust its points on this
+scene: then these SIFT steps, and the run's ``init_dense_fallback`` is 1):
 
 1. SIFT features (``cv2.SIFT_create(nfeatures=cfg.max_features)``).
 2. Each view is matched to its ``cfg.neighbor_cams`` nearest training cameras by centre
@@ -42,7 +43,15 @@ from scipy.spatial import cKDTree
 from ftgspp.config import InitConfig
 from ftgspp.data.scene import Camera, Scene
 from ftgspp.errors import InputError
-from ftgspp.init.quality import init_stats, velocity_error
+from ftgspp.init.dense import (
+    AGREEMENT_MAX,
+    COVERAGE_MIN,
+    check_option,
+    dense_trusted,
+    sift_depth_gaps,
+    triangulate_keyframe_dense,
+)
+from ftgspp.init.quality import depth_error, init_stats, velocity_error
 from ftgspp.init.two_view import (
     fundamental_matrix,
     neighbor_pairs,
@@ -177,29 +186,30 @@ def _first_occurrence(ids: np.ndarray) -> np.ndarray:
     return mask
 
 
-def triangulate_keyframe(
-    scene: Scene, frame: int, cfg: InitConfig, near: float, far: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Triangulated points [M, 3] and colours [M, 3] (float32) of loaded frame ``frame``.
-
-    Uses training cameras only. See the module docstring for the pipeline and checks.
-    """
+def sift_pair_matches(scene: Scene, frame: int, cfg: InitConfig, near: float, far: float, exclusive: bool = True
+                      ) -> tuple[list, dict]:
+    """The kept SIFT matches of loaded frame ``frame``, per camera pair in ``neighbor_pairs`` order:
+    ``(a, b, pix_a [m, 2] (image pixels of a), X [m, 3], colours [m, 3])``, and the counts
+    (``views``, ``pairs``, ``matches``, ``epipolar``). Training cameras only; the pipeline and checks
+    of the module docstring (``exclusive=False``: every pair keeps its matches, also of features an
+    earlier pair used)."""
     sift = cv2.SIFT_create(nfeatures=cfg.max_features)
     pairs = neighbor_pairs(scene, cfg.neighbor_cams)
     cams = sorted({c for p in pairs for c in p})  # training cameras only
     views = {c: _detect(sift, scene.cameras[c], scene.frames(c)[frame]) for c in cams}
     used = {c: np.zeros(len(v.pix), dtype=bool) for c, v in views.items()}  # by location id
-    points, colors = [], []
-    n_matches = n_epipolar = 0
+    out = []
+    counts = dict(views=len(views), pairs=len(pairs), matches=0, epipolar=0)
     for a, b in pairs:
         va, vb, cam_a, cam_b = views[a], views[b], scene.cameras[a], scene.cameras[b]
         m = _ratio_matches(va.desc, vb.desc, cfg.ratio_test)
-        m = m[~used[a][va.loc[m[:, 0]]] & ~used[b][vb.loc[m[:, 1]]]]
-        n_matches += len(m)
+        if exclusive:
+            m = m[~used[a][va.loc[m[:, 0]]] & ~used[b][vb.loc[m[:, 1]]]]
+        counts["matches"] += len(m)
         pa, pb = va.und[m[:, 0]], vb.und[m[:, 1]]
         ok = sampson_distance(fundamental_matrix(cam_a, cam_b), pa, pb) < cfg.max_reproj_px
         m, pa, pb = m[ok], pa[ok], pb[ok]
-        n_epipolar += len(m)
+        counts["epipolar"] += len(m)
         if len(m) == 0:
             continue
         X, keep = triangulate_pair(cam_a, cam_b, pa, pb, near, far, cfg.max_reproj_px)
@@ -208,13 +218,25 @@ def triangulate_keyframe(
         m, X = m[unique], X[unique]
         used[a][va.loc[m[:, 0]]] = True
         used[b][vb.loc[m[:, 1]]] = True
-        points.append(X)
-        colors.append(0.5 * (pixel_colors(va.image, va.pix[m[:, 0]]) + pixel_colors(vb.image, vb.pix[m[:, 1]])))
+        colors = 0.5 * (pixel_colors(va.image, va.pix[m[:, 0]]) + pixel_colors(vb.image, vb.pix[m[:, 1]]))
+        out.append((a, b, va.pix[m[:, 0]], X, colors))
+    return out, counts
+
+
+def triangulate_keyframe(
+    scene: Scene, frame: int, cfg: InitConfig, near: float, far: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulated points [M, 3] and colours [M, 3] (float32) of loaded frame ``frame``.
+
+    Uses training cameras only. See the module docstring for the pipeline and checks.
+    """
+    per_pair, counts = sift_pair_matches(scene, frame, cfg, near, far)
+    points, colors = [X for *_, X, _ in per_pair], [c for *_, c in per_pair]
     P = np.concatenate(points).astype(np.float32) if points else np.zeros((0, 3), np.float32)
     C = np.concatenate(colors).astype(np.float32) if colors else np.zeros((0, 3), np.float32)
     log.info(
         "init: frame %d: %d views, %d pairs, %d matches, %d epipolar inliers, %d points",
-        frame, len(views), len(pairs), n_matches, n_epipolar, len(P),
+        frame, counts["views"], counts["pairs"], counts["matches"], counts["epipolar"], len(P),
     )
     return P, C
 
@@ -281,10 +303,24 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
     check_velocity_mode(cfg)  # fail before the expensive matching
     kfs = keyframes(scene, cfg)
     kf_times = [float(scene.times[f]) for f in kfs]
+    check = check_option(cfg)
+    seen = None
     if cfg.matcher == "dense":
-        from ftgspp.init.dense import triangulate_keyframe_dense
-
-        tri = [triangulate_keyframe_dense(scene, f, cfg, near, far)[:2] for f in kfs]
+        tri, gaps, coverages = [], [], []
+        for f in kfs:
+            flows: dict = {}  # this keyframe's dense flows, for the check only
+            P, C, counts = triangulate_keyframe_dense(scene, f, cfg, near, far, flows=flows, measure_coverage=True)
+            tri.append((P, C))
+            coverages.append(counts["coverage"])
+            if check != "off":
+                sift = sift_pair_matches(scene, f, cfg, near, far, exclusive=False)[0]
+                gaps.append(sift_depth_gaps(scene, [(a, b, pix, X) for a, b, pix, X, _ in sift], flows))
+        trusted, seen = dense_trusted(cfg, coverages, gaps)
+        if not trusted:
+            log.info("init: dense points not trusted (coverage of the views %.2f, needs %.2f; median depth gap to "
+                     "SIFT %.3f, at most %.2f; init.dense_check=%s): SIFT matches instead", seen["coverage"],
+                     COVERAGE_MIN, seen.get("disagreement", float("nan")), AGREEMENT_MAX, check)
+            tri = [triangulate_keyframe(scene, f, cfg, near, far) for f in kfs]
     else:
         tri = [triangulate_keyframe(scene, f, cfg, near, far) for f in kfs]
     points = [p for p, _ in tri]
@@ -302,7 +338,16 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
 
         velocities, _ = keyframe_flow_velocities(scene, kfs, points, velocities, spacing, cfg)
     stats = init_stats([len(p) for p in points], budget - n_random, cfg.matcher)
+    # the stride in the clip's own terms (secret 3): how many keyframes, how many seconds apart
+    stats["init_keyframes"] = float(len(kfs))
+    stats["init_keyframe_interval_s"] = float(kf_times[1] - kf_times[0]) if len(kfs) > 1 else float(scene.duration)
+    if seen is not None:
+        stats["init_dense_coverage"] = seen["coverage"]
+        if "disagreement" in seen:
+            stats["init_dense_sift_disagreement"] = seen["disagreement"]
+        stats["init_dense_fallback"] = float(not trusted)
     stats.update(velocity_error(scene, kfs, points, velocities))
+    stats.update(depth_error(scene, kfs, points))
     all_spacing = np.concatenate(spacing)
     finite = all_spacing[np.isfinite(all_spacing)]
     fallback = float(np.median(finite)) if len(finite) else 0.01 * scene_scale(scene)

@@ -9,11 +9,18 @@ its velocity is compared with the ground-truth world velocity there. Points on m
 (true speed above ``MOVING_SPEED``) and on static content are scored apart: the median
 end-point error in units/s, and on moving points also the median true speed, so the error
 reads as a fraction of the motion.
+
+``depth_error`` scores the initial points' positions against the true depth (``gt/depth``, read at
+its own resolution, whatever ``data.downsample`` the run trains at): a point's relative depth
+error is ``|z - d| / d`` in the training camera where that is smallest, ``z`` its depth in the
+camera and ``d`` the true depth at the pixel it projects to (a point on a surface some camera
+sees scores about 0 there; a point in free space or behind a surface scores the gap).
 """
 
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 
@@ -90,3 +97,44 @@ def velocity_error(scene: Scene, keyframes: list[int], points: list[np.ndarray],
     if (~moving).any():
         out["init_velocity_error_static"] = float(np.median(err[~moving]))
     return out
+
+
+def relative_depth_errors(scene: Scene, frame: int, points: np.ndarray) -> np.ndarray | None:
+    """``[M]`` relative depth error of each point of loaded frame ``frame`` (``inf`` where no training
+    camera sees it in its image); None without ``gt/depth`` files for every training camera."""
+    if scene.ground_truth is None:
+        return None
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    best = np.full(len(P), np.inf)
+    for cam_id in scene.train_ids:
+        cam = scene.cameras[cam_id]
+        path = Path(scene.ground_truth) / "depth" / f"{cam.name}.npy"
+        if not path.is_file():
+            return None
+        truth = np.load(path, mmap_mode="r")[int(scene.frame_ids[frame])]  # [H', W'] at the written size
+        full = cam.scaled(truth.shape[1] / cam.width) if truth.shape[1] != cam.width else cam
+        uv, z = project(full, P)
+        with np.errstate(invalid="ignore"):
+            x, y = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+            inside = (z > 0) & (x >= 0) & (x < truth.shape[1]) & (y >= 0) & (y < truth.shape[0])
+        d = np.asarray(truth)[y[inside].astype(np.int64), x[inside].astype(np.int64)].astype(np.float64)
+        idx = np.flatnonzero(inside)
+        best[idx] = np.minimum(best[idx], np.abs(z[inside] - d) / np.maximum(d, 1e-12))
+    return best
+
+
+def depth_error(scene: Scene, keyframes: list[int], points: list[np.ndarray]) -> dict[str, float]:
+    """Median and 90th percentile of the real points' relative depth error over every keyframe
+    (empty without ground truth, or when its files cannot be read: a warning, never a failed run)."""
+    if scene.ground_truth is None or not sum(len(p) for p in points):
+        return {}
+    try:
+        errs = [relative_depth_errors(scene, f, p) for f, p in zip(keyframes, points)]
+    except (OSError, ValueError, IndexError) as exc:
+        log.warning("init: ground-truth depth of %s unreadable (%s); initial points not scored", scene.root, exc)
+        return {}
+    if any(e is None for e in errs):
+        return {}
+    e = np.concatenate(errs)
+    return {"init_depth_error_median": float(np.median(e)),
+            "init_depth_error_p90": float(np.quantile(e, 0.9, method="inverted_cdf"))}

@@ -20,7 +20,9 @@ from scipy import stats
 AVERAGE = "average"
 KEY_COLUMNS = ["variant", "scene", "seed", "config_hash"]
 # model_digest: a sha256 of the trained model's parameters (harness/run/training.py), where recorded
-RUN_COLUMNS = ("scene_label", "status", "failure", "error", "run_id", "trainer_fingerprint", "model_digest", "command")
+# git_sha / start_time: the commit a run was made from and when it started (spec.registration)
+RUN_COLUMNS = ("scene_label", "status", "failure", "error", "run_id", "trainer_fingerprint", "model_digest", "git_sha",
+               "start_time", "command")
 EXTRA_PARAMS = ("budget", "iterations", "lr.scale")
 # run tags that say which determinism domain a run's bits come from (ftgspp/runtime/determinism.py)
 DOMAIN_COLUMNS = {"domain": "determinism.id", "determinism": "determinism.mode",

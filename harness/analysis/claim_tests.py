@@ -71,11 +71,28 @@ class Result:
     power: tuple[str, float] = ("", math.nan)  # (test, SD or pair correlation) for the runs needed at the SESOI
     detail: str = ""
     p_outside: float = math.nan  # the effect lies outside ±SESOI (minimal-effect test; mean claims)
+    # the effect's interval at any confidence level, from the same test or bootstrap as ``ci``: the
+    # family's Holm step sets the level the verdict used (``verdicts.decide``: ``ci_adj_*``)
+    interval: Callable[[float], tuple[float, float]] | None = None
 
 
 def _ci(res: object, level: float) -> tuple[float, float]:
     ci = res.confidence_interval(level)
     return float(ci.low), float(ci.high)
+
+
+def _interval(res: object) -> Callable[[float], tuple[float, float]]:
+    """``level -> (low, high)`` of a scipy t-test result (its ``confidence_interval``)."""
+    return lambda level: _ci(res, level)
+
+
+def _percentile(dist: np.ndarray) -> Callable[[float], tuple[float, float]]:
+    """``level -> (low, high)``: the central percentile interval of a bootstrap distribution."""
+    def interval(level: float) -> tuple[float, float]:
+        tail = round((1.0 - level) / 2, 12)  # 0.95 -> 0.025 exactly, as the 95% CI always used
+        with np.errstate(invalid="ignore"):  # inf − inf between two infinite draws: inf, not a warning
+            return float(np.quantile(dist, tail)), float(np.quantile(dist, 1.0 - tail))
+    return interval
 
 
 def compare_means(a: np.ndarray, b: np.ndarray | None, paired: bool, sesoi: float) -> Result:
@@ -89,7 +106,7 @@ def compare_means(a: np.ndarray, b: np.ndarray | None, paired: bool, sesoi: floa
         sd = float(d.std(ddof=1))
         return Result(method, n, float(d.mean()), _ci(res, CONFIDENCE), _ci(res, 0.90), "t", float(res.statistic),
                       float(res.pvalue), stats.tost_paired(d, sesoi), ("t_paired", sd),
-                      p_outside=stats.minimal_effect_p(d, sesoi))
+                      p_outside=stats.minimal_effect_p(d, sesoi), interval=_interval(res))
     b = np.asarray(b, dtype=float)
     res = sps.ttest_ind(a, b, equal_var=False)
     pooled = math.sqrt((a.var(ddof=1) + b.var(ddof=1)) / 2)
@@ -97,7 +114,7 @@ def compare_means(a: np.ndarray, b: np.ndarray | None, paired: bool, sesoi: floa
     below = sps.ttest_ind(a + sesoi, b, equal_var=False, alternative="less").pvalue  # a − b < −sesoi
     return Result("Welch t", f"{len(a)} vs {len(b)}", float(a.mean() - b.mean()), _ci(res, CONFIDENCE),
                   _ci(res, 0.90), "t", float(res.statistic), float(res.pvalue), stats.tost_ind(a, b, sesoi),
-                  ("t_ind", pooled), p_outside=float(min(1.0, 2 * min(above, below))))
+                  ("t_ind", pooled), p_outside=float(min(1.0, 2 * min(above, below))), interval=_interval(res))
 
 
 def _sd_ratio(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -122,8 +139,8 @@ def compare_variances(a: np.ndarray, b: np.ndarray, sesoi: float, names: tuple[s
         boot = sps.bootstrap((a, b), _sd_ratio, n_resamples=BOOT_RESAMPLES, method="percentile", vectorized=True,
                              paired=paired, confidence_level=CONFIDENCE, rng=np.random.default_rng(BOOT_SEED))
         dist = boot.bootstrap_distribution[~np.isnan(boot.bootstrap_distribution)]
-        ci90 = (float(np.quantile(dist, 0.05)), float(np.quantile(dist, 0.95)))  # inf − inf: inf, not a warning
-        ci = (float(np.quantile(dist, 0.025)), float(np.quantile(dist, 0.975)))  # percentile, as scipy's
+        ci90 = _percentile(dist)(0.90)
+        ci = _percentile(dist)(CONFIDENCE)  # percentile, as scipy's
     va, vb = a.var(ddof=1), b.var(ddof=1)
     na, nb = names
     detail = f"SD {na} = {math.sqrt(va):.3g}, SD {nb} = {math.sqrt(vb):.3g}" + (
@@ -137,12 +154,12 @@ def compare_variances(a: np.ndarray, b: np.ndarray, sesoi: float, names: tuple[s
         return Result("Pitman–Morgan (paired by seed); SD ratio, paired bootstrap CI", f"{len(a)} pairs",
                       float(_sd_ratio(a, b)), ci, ci90, "r", float(r.statistic) if r is not None else math.nan, p,
                       stats.pitman_morgan_tost(a, b, sesoi), ("pm", max(0.0, rho)),
-                      detail + f"; the pairs correlate r = {rho:.2f}", p_outside=outside)
+                      detail + f"; the pairs correlate r = {rho:.2f}", p_outside=outside, interval=_percentile(dist))
     res = sps.levene(a, b, center="median")
     p_tost = float(max((dist <= 1 / sesoi).mean(), (dist >= sesoi).mean()))  # bootstrap TOST on the ratio
     return Result("Brown–Forsythe (Levene, median); SD ratio, bootstrap CI", f"{len(a)} vs {len(b)}",
                   float(_sd_ratio(a, b)), ci, ci90, "W", float(res.statistic), float(res.pvalue), p_tost,
-                  ("bf", math.nan), detail)
+                  ("bf", math.nan), detail, interval=_percentile(dist))
 
 
 # --------------------------------------------------------------------------- selecting runs
@@ -240,7 +257,7 @@ def _contrast(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Re
                   worst.n, worst.effect, worst.ci, worst.ci90, "t", worst.statistic, worst.p,
                   max(r.p_tost for r in results), worst.power,
                   "weakest contrast: " + worst.detail + "; all: " + "; ".join(
-                      f"{r.detail} = {r.effect:+.3f}" for r in results))
+                      f"{r.detail} = {r.effect:+.3f}" for r in results), interval=worst.interval)
 
 
 def _seed_aligned(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...], pairs: Callable
@@ -273,7 +290,7 @@ def _decoupled(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> R
                   f"{len(dy)} pairs", float(dy.mean()), _ci(res, CONFIDENCE), _ci(res, 0.90), "t",
                   float(res.statistic), min(1.0, p * len(tried)), math.nan, ("", math.nan),
                   f"best pair {va} vs {vb} on {scene}: {claim.metric} equivalent (TOST p = {p_equal:.2g}),"
-                  f" {claim.versus} differs by {dy.mean():+.3g} (p = {res.pvalue:.2g})")
+                  f" {claim.versus} differs by {dy.mean():+.3g} (p = {res.pvalue:.2g})", interval=_interval(res))
 
 
 def _dissociated(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
@@ -301,7 +318,8 @@ def _dissociated(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) ->
                   f" {len(tried)} pairs", f"{len(dv)} pairs", float(raw.mean()), _ci(res, CONFIDENCE),
                   _ci(res, 0.90), "t", float(res.statistic), min(1.0, p * len(tried)), math.nan, ("", math.nan),
                   f"best pair {vx} vs {vy} on {scene}: {claim.metric} {sign_m * dm.mean():+.3g} (not worse by"
-                  f" {claim.sesoi:g}: p = {p_not_worse:.2g}), {claim.versus} {raw.mean():+.3g} (worse)")
+                  f" {claim.sesoi:g}: p = {p_not_worse:.2g}), {claim.versus} {raw.mean():+.3g} (worse)",
+                  interval=_interval(res))
 
 
 def _spread(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
@@ -313,10 +331,13 @@ def _spread(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Resu
     values = (ok[claim.metric] - ok.groupby("scene")[claim.metric].transform("mean")).to_numpy(float)
     dof = len(values) - ok.scene.nunique()
     sd = float(math.sqrt((values ** 2).sum() / dof))
-    ci = tuple(float(math.sqrt(dof * sd * sd / sps.chi2.ppf(q, dof))) for q in (0.975, 0.025))
-    ci90 = tuple(float(math.sqrt(dof * sd * sd / sps.chi2.ppf(q, dof))) for q in (0.95, 0.05))
+    def interval(level: float) -> tuple[float, float]:  # the chi-square interval of an SD
+        tail = round((1.0 - level) / 2, 12)
+        return tuple(float(math.sqrt(dof * sd * sd / sps.chi2.ppf(q, dof))) for q in (1.0 - tail, tail))
+
     return Result("run-to-run SD (centred per scene), chi-square CI; described, not tested", f"{len(values)} runs",
-                  sd, ci, ci90, "", math.nan, math.nan, detail=f"{dof} degrees of freedom")
+                  sd, interval(CONFIDENCE), interval(0.90), "", math.nan, math.nan, detail=f"{dof} degrees of freedom",
+                  interval=interval)
 
 
 def compare(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:

@@ -47,7 +47,7 @@ EXPECTED, UNEXPECTED, NOT_COMPARED = "expected to differ", "differs unexpectedly
 CLASSES = (IDENTICAL, EVALUATION_DIFFERS, EXPECTED, UNEXPECTED, NOT_COMPARED)
 # provenance columns, read as text (a hex id of digits alone must not become a number)
 TEXT_COLUMNS = ("config_hash", "trainer_fingerprint", "domain", "determinism", "cpu_capability", "cpu_model",
-                "torch_threads", DIGEST)
+                "torch_threads", DIGEST, "git_sha", "start_time")
 ANOTHER_DOMAIN, ANOTHER_CONFIG, TRAINER_CODE = "another determinism domain", "another config", "trainer code"
 
 

@@ -5,6 +5,8 @@ either already provides).
   (``statsmodels.stats.multitest.multipletests``); ``union_adjust``: one Holm over a family's
   difference *and* equivalence hypotheses together, so that everything the family can reject
   shares one family-wise error rate (two separate Holm runs allow up to 2α);
+  ``holm_levels``: the α of the Holm step that decided each of them, the level of the interval
+  dual to that decision;
 - ``tost_paired``, ``tost_one_sample``, ``tost_ind``: equivalence within ±SESOI, two one-sided
   tests (``statsmodels.stats.weightstats``);
 - ``minimal_effect_p``: the test that a mean difference lies *outside* ±SESOI (the
@@ -66,6 +68,29 @@ def union_adjust(p_difference: np.ndarray, p_equivalence: np.ndarray, method: st
 def family_size(p_difference: np.ndarray, p_equivalence: np.ndarray) -> int:
     """How many hypotheses a family holds (finite p-values of either kind)."""
     return int(np.isfinite(np.asarray(p_difference, float)).sum() + np.isfinite(np.asarray(p_equivalence, float)).sum())
+
+
+def holm_levels(p_difference: np.ndarray, p_equivalence: np.ndarray, alpha: float = ALPHA
+                ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Where ``union_adjust``'s Holm procedure decided each hypothesis of one family: (the α of
+    the step that rejected each difference hypothesis, the same for each equivalence hypothesis,
+    the α of the step where Holm stopped). Step i of m tests at α/(m − i + 1); a hypothesis not
+    rejected (adjusted p ≥ ``alpha``), or untested (NaN), gets NaN; the stop level is NaN when
+    every hypothesis was rejected. A two-sided interval at confidence 1 − (its level) is the one
+    dual to that decision: it excludes the null exactly when the test at that step rejects."""
+    from scipy.stats import rankdata
+
+    d, e = np.asarray(p_difference, dtype=float), np.asarray(p_equivalence, dtype=float)
+    p = np.concatenate([d, e])
+    adjusted = np.concatenate(union_adjust(d, e))
+    ok = np.flatnonzero(np.isfinite(p))
+    m = len(ok)
+    levels = np.full_like(p, np.nan)
+    rejected = adjusted[ok] < alpha
+    step = rankdata(p[ok], method="ordinal")  # i: the step at which Holm met the hypothesis
+    levels[ok[rejected]] = alpha / (m - step[rejected] + 1)
+    stop = alpha / (m - int(rejected.sum())) if rejected.sum() < m else math.nan
+    return levels[: len(d)], levels[len(d):], stop
 
 
 def minimal_effect_p(d: np.ndarray, sesoi: float) -> float:

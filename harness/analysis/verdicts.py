@@ -28,7 +28,15 @@ each named family (``ClaimSpec.group``) and gives every row one verdict:
   **evidence** and **withdrawn** are in no family.
 
 Beside the direction, each deciding row judges the paper's *size* (``paper_size``): is the
-paper's own effect inside our 95% CI ("as large as the paper's"), below it or above it.
+paper's own effect inside our 95% CI ("as large as the paper's"), or is ours smaller or larger
+along the paper's direction — or in the opposite direction.
+
+Each decided row carries the interval its verdict used (``ci_adj_*``): at the confidence of the
+Holm step that decided it (``adjusted_level``), so that it excludes 0 (or lies inside ±SESOI)
+exactly when the test rejects; ``interval_note`` says when it lies wholly beyond the SESOI, even
+for an inconclusive row. A counted row whose claim was not registered before its runs
+(``registered_before_runs``, computed from git by ``spec.registration`` in ``report.families``)
+is **exploratory**: it keeps its place in the family and its verdict, named so beside it.
 
 The study report and ``reports/index.md`` both show the verdicts of one decision over every
 study's rows (``report.families``), so a page and the index cannot disagree.
@@ -52,11 +60,14 @@ DECIDED = (REPRODUCED, CONTRADICTED, EQUIVALENT, INCONCLUSIVE)  # verdicts of ro
 CORRECTION = "holm"
 DECIDES, AS_EVIDENCE, REPLACED = "decides", "evidence", "replaced"
 COLUMNS = ["id", "claim", "group", "statement", "metric", "test", "expect", "comparison", "scene", "scope", "method",
-           "n", "effect", "ci_low", "ci_high", "ci90_low", "ci90_high", "sesoi", "sesoi_source", "stat_name",
-           "statistic", "p", "p_tost", "p_outside", "p_het", "p_adj", "p_tost_adj", "family", "family_size", "verdict",
-           "raw_verdict", "n_needed", "power_test", "power_param", "note", "detail", "role", "statement_id",
-           "registered", "withdrawn", "history", "counted", "paper_statement", "paper_source", "paper_numbers",
-           "paper_evidence", "paper_effects", "paper_size"]
+           "n", "effect", "ci_low", "ci_high", "ci90_low", "ci90_high", "ci_adj_low", "ci_adj_high", "ci_adj_level",
+           "sesoi", "sesoi_source", "stat_name", "statistic", "p", "p_tost", "p_outside", "p_het", "p_adj",
+           "p_tost_adj", "family", "family_size", "verdict", "exploratory", "interval_note", "raw_verdict", "n_needed",
+           "power_test", "power_param", "note", "detail", "role", "statement_id", "registered_commit", "role_commit",
+           "first_run_commit", "registered_before_runs", "registration_note", "withdrawn", "history", "counted",
+           "paper_statement", "paper_source", "paper_numbers", "paper_evidence", "paper_effects", "paper_size"]
+INTERVAL = "_interval"  # evaluate's per-row ``level -> (low, high)`` (claim_tests.Result.interval); decide drops it
+RAW_LEVEL = 1 - stats.ALPHA  # the interval of a row in no family: at the unadjusted α
 
 
 def comparison_text(claim: ClaimSpec) -> str:
@@ -125,17 +136,25 @@ def _f_test(a_std: float, b_std: float, n: int | None) -> str:
     return f"SD ratio {a_std / b_std:.2f}, F-test p = {p:.2g} ({'distinguishable' if p < stats.ALPHA else 'not distinguishable'})"
 
 
-def size_text(effects: str, low: float, high: float) -> str:
-    """Per dataset of the paper: its effect inside our 95% CI ("as large as the paper's"), or
-    ours smaller / larger than the paper's."""
+def size_text(effects: str, effect: float, low: float, high: float, test: str = "mean") -> str:
+    """Per dataset of the paper: its effect inside our 95% CI ("as large as the paper's"); else,
+    read along the paper's direction (away from 0, or from 1 for an SD ratio), ours "smaller" or
+    "larger than the paper's" — or "opposite direction" when our effect has the other sign."""
     out = []
+    centre = 1.0 if test == "variance" else 0.0
     for part in filter(None, str(effects or "").split(";")):
         dataset, value = part.rsplit("=", 1)
         v = float(value)
         if not (np.isfinite(low) and np.isfinite(high)):
             continue
-        judged = ("as large as the paper's" if low <= v <= high else
-                  "smaller than the paper's" if v > high else "larger than the paper's")
+        paper, ours = np.sign(v - centre), np.sign(effect - centre)
+        if low <= v <= high:
+            judged = "as large as the paper's"
+        elif paper != 0 and ours == -paper:
+            judged = "opposite direction"
+        else:  # the paper's effect beyond our CI on its own side: ours is smaller
+            beyond = v > high if paper >= 0 else v < low
+            judged = "smaller than the paper's" if beyond and paper != 0 else "larger than the paper's"
         out.append(f"{dataset}: {judged}")
     return "; ".join(out)
 
@@ -147,13 +166,17 @@ def _row(claim: ClaimSpec, scene: str, scope: str, study: str, register: Registe
             "statement": claim.statement, "metric": claim.metric, "test": claim.test, "expect": claim.expect,
             "comparison": comparison_text(claim), "scene": scene, "scope": scope, "method": "", "n": "",
             "effect": math.nan, "ci_low": math.nan, "ci_high": math.nan, "ci90_low": math.nan, "ci90_high": math.nan,
-            "sesoi": claim.sesoi, "sesoi_source": claim.sesoi_source, "stat_name": "", "statistic": math.nan,
+            "ci_adj_low": math.nan, "ci_adj_high": math.nan, "ci_adj_level": math.nan, "sesoi": claim.sesoi,
+            "sesoi_source": claim.sesoi_source, "stat_name": "", "statistic": math.nan,
             "p": math.nan, "p_tost": math.nan, "p_outside": math.nan, "p_het": math.nan, "p_adj": math.nan,
-            "p_tost_adj": math.nan, "family": "", "family_size": math.nan, "verdict": NOT_TESTED, "raw_verdict": "",
+            "p_tost_adj": math.nan, "family": "", "family_size": math.nan, "verdict": NOT_TESTED, "exploratory": False,
+            "interval_note": "", "raw_verdict": "",
             "n_needed": math.nan, "power_test": "", "power_param": math.nan, "note": "", "detail": "",
-            "role": role, "statement_id": statement.id if statement else "", "registered": claim.registered,
-            "withdrawn": claim.withdrawn, "history": " / ".join(claim.history), "counted": False,
-            **paper_columns(statement if role == DECIDES else None, claim.test), "paper_size": ""}
+            "role": role, "statement_id": statement.id if statement else "", "registered_commit": "",
+            "role_commit": "", "first_run_commit": "", "registered_before_runs": "unknown",
+            "registration_note": "not computed", "withdrawn": claim.withdrawn, "history": " / ".join(claim.history),
+            "counted": False,
+            **paper_columns(statement if role == DECIDES else None, claim.test), "paper_size": "", INTERVAL: None}
 
 
 def _tested(row: dict, df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> dict:
@@ -171,7 +194,7 @@ def _tested(row: dict, df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ..
            "ci90_low": res.ci90[0], "ci90_high": res.ci90[1], "stat_name": res.stat_name,
            "statistic": res.statistic, "p": res.p_outside if equivalence_claim else res.p, "p_tost": res.p_tost,
            "p_outside": res.p_outside, "detail": res.detail, "verdict": INCONCLUSIVE, "power_test": res.power[0],
-           "power_param": res.power[1]}
+           "power_param": res.power[1], INTERVAL: res.interval}
     if claim.test == "spread":
         return {**row, "verdict": DESCRIBED, "p": math.nan, "p_tost": math.nan}
     if not np.isfinite(row["p"]):
@@ -199,7 +222,7 @@ def evaluate(df: pd.DataFrame, claims: tuple[ClaimSpec, ...] | list[ClaimSpec], 
         used = list(c.scenes) or list(dict.fromkeys(C.finished(df, c.metric).scene))
         scope = ", ".join(used) + (" (pooled)" if len(used) > 1 and c.test != "interaction" else "")
         rows.append({**_tested(_row(c, "", scope, study, register), df, c, c.scenes), "p_het": p_het})
-    return pd.DataFrame(rows, columns=COLUMNS)
+    return pd.DataFrame(rows, columns=[*COLUMNS, INTERVAL])
 
 
 def _direction(effect: float, test: str) -> int:
@@ -251,38 +274,109 @@ def _needed(row: pd.Series, alpha: float) -> float:
     return math.nan
 
 
+def by_equivalence(row: pd.Series) -> bool:
+    """Did the equivalence test decide the row (an equivalent row, or one reproduced by
+    equivalence: a "≈" claim, or a ``not_higher`` / ``not_lower`` claim within ±SESOI)?"""
+    return row.verdict == EQUIVALENT or (row.verdict == REPRODUCED and (
+        row.expect == "equivalent" or (row.expect in ("not_higher", "not_lower") and row.p_tost_adj < stats.ALPHA)))
+
+
+def adjusted_level(row: pd.Series, level_d: float, level_e: float, stop: float) -> float:
+    """The confidence level of the interval the verdict used (``stats.holm_levels``): a row
+    rejected at Holm step i by its difference test (or, for a "≈" claim, its minimal-effect test)
+    at 1 − α_i; by its equivalence test at 1 − 2α_i (TOST at α_i is the (1 − 2α_i) interval inside
+    ±SESOI); a row not rejected at 1 − α of the step where Holm stopped."""
+    if by_equivalence(row) and np.isfinite(level_e):
+        return 1 - 2 * level_e
+    if row.verdict in (REPRODUCED, CONTRADICTED) and np.isfinite(level_d):
+        return 1 - level_d
+    return 1 - stop
+
+
+def interval_note(row: pd.Series) -> str:
+    """What a decided row's adjusted interval says beyond the verdict: that it lies wholly beyond
+    the SESOI on one side (the claimed direction or the opposite), or outside ±SESOI for a "≈"
+    claim; "" otherwise, and for tests whose effect has no SESOI band (existential, spread)."""
+    if row.test in ("decoupled", "dissociated", "spread") or not np.isfinite(row.ci_adj_low):
+        return ""
+    adjusted = row.copy()
+    adjusted["ci_low"], adjusted["ci_high"] = row.ci_adj_low, row.ci_adj_high
+    _, low, high = in_sesoi_units(adjusted)
+    below, above = ("1/SESOI", "SESOI") if row.test == "variance" else ("−SESOI", "+SESOI")
+    if row.expect == "equivalent":  # either side is against a "≈" claim
+        return (f"the whole adjusted interval lies below {below} (against the claim)" if high < -1 else
+                f"the whole adjusted interval lies above {above} (against the claim)" if low > 1 else "")
+    wanted = -1 if row.expect in ("lower", "not_higher") else 1
+    if high < -1:
+        return f"the whole adjusted interval lies below {below} ({_side(wanted < 0)} direction)"
+    if low > 1:
+        return f"the whole adjusted interval lies above {above} ({_side(wanted > 0)} direction)"
+    return ""
+
+
+def _side(claimed: bool) -> str:
+    return "the claimed" if claimed else "the opposite"
+
+
 def decide(frame: pd.DataFrame, method: str = CORRECTION, label: str = "") -> pd.DataFrame:
     """``frame`` with ``p_adj``, ``p_tost_adj``, ``family``, ``counted`` and ``verdict`` per row: the
     counted rows of each group are one family, corrected with ``method`` over their difference
-    and equivalence p-values together; the other rows keep their raw p and say what they are."""
+    and equivalence p-values together; the other rows keep their raw p and say what they are.
+
+    Each tested row also gets the interval its verdict used (``ci_adj_low``, ``ci_adj_high`` at
+    ``ci_adj_level``: ``adjusted_level``; 95% for rows in no family) from ``evaluate``'s per-row
+    interval, which ``decide`` then drops (a frame decided again keeps the intervals it has);
+    ``interval_note`` when that interval lies wholly beyond the SESOI; ``exploratory`` for a
+    counted row not registered before its runs (``registered_before_runs``: ``spec.registration``)."""
     out = frame.copy()
+    if INTERVAL not in out:
+        out[INTERVAL] = None
     out["counted"] = out.apply(counts, axis=1) if len(out) else []
+    levels = pd.DataFrame(math.nan, index=out.index, columns=["d", "e", "stop"])
     for group, idx in out[out.counted].groupby("group").groups.items():
-        p_adj, p_tost_adj = stats.union_adjust(out.loc[idx, "p"].to_numpy(float),
-                                               out.loc[idx, "p_tost"].to_numpy(float), method)
-        m = stats.family_size(out.loc[idx, "p"].to_numpy(float), out.loc[idx, "p_tost"].to_numpy(float))
+        p, p_tost = out.loc[idx, "p"].to_numpy(float), out.loc[idx, "p_tost"].to_numpy(float)
+        p_adj, p_tost_adj = stats.union_adjust(p, p_tost, method)
+        m = stats.family_size(p, p_tost)
         out.loc[idx, "p_adj"], out.loc[idx, "p_tost_adj"] = p_adj, p_tost_adj
         out.loc[idx, "family"] = f"{group}{label}: {method.capitalize()} over {m} hypotheses"
         out.loc[idx, "family_size"] = m
+        if method == "holm":  # the step levels are Holm's
+            level_d, level_e, stop = stats.holm_levels(p, p_tost)
+            levels.loc[idx, "d"], levels.loc[idx, "e"], levels.loc[idx, "stop"] = level_d, level_e, stop
     for i in out.index:
         r = out.loc[i]
         if r.verdict == DESCRIBED and r.role == DECIDES:
-            out.at[i, "paper_size"] = size_text(r.paper_effects, float(r.ci_low), float(r.ci_high))
+            out.at[i, "paper_size"] = size_text(r.paper_effects, float(r.effect), float(r.ci_low), float(r.ci_high),
+                                                r.test)
         if r.verdict not in DECIDED:
             if r.withdrawn or r.role == REPLACED:
                 out.at[i, "raw_verdict"], out.at[i, "verdict"] = r.verdict, WITHDRAWN
+            _interval_at(out, i, RAW_LEVEL if r.verdict == DESCRIBED else math.nan)
             continue
         if not r.counted:  # shown with its unadjusted verdict, in no family
             out.at[i, "raw_verdict"] = verdict(r.expect, float(r.effect), r.test, float(r.p), float(r.p_tost))
             out.at[i, "verdict"] = WITHDRAWN if r.withdrawn or r.role == REPLACED else EVIDENCE
+            _interval_at(out, i, RAW_LEVEL)
             continue
         v = verdict(r.expect, float(r.effect), r.test, float(r.p_adj), float(r.p_tost_adj))
         out.at[i, "verdict"] = v
+        out.at[i, "exploratory"] = r.registered_before_runs == "no"
         if v == INCONCLUSIVE:
             out.at[i, "n_needed"] = _needed(r, stats.ALPHA / max(1.0, float(r.family_size)))
         if r.role == DECIDES:
-            out.at[i, "paper_size"] = size_text(r.paper_effects, float(r.ci_low), float(r.ci_high))
-    return out
+            out.at[i, "paper_size"] = size_text(r.paper_effects, float(r.effect), float(r.ci_low), float(r.ci_high),
+                                                r.test)
+        _interval_at(out, i, adjusted_level(out.loc[i], *levels.loc[i]))
+        out.at[i, "interval_note"] = interval_note(out.loc[i])
+    return out.drop(columns=INTERVAL)
+
+
+def _interval_at(out: pd.DataFrame, i: object, level: float) -> None:
+    """Row ``i``'s interval at ``level`` from its test (``INTERVAL``); kept as it is without one."""
+    interval = out.at[i, INTERVAL]
+    if callable(interval) and np.isfinite(level):
+        out.at[i, "ci_adj_low"], out.at[i, "ci_adj_high"] = interval(level)
+        out.at[i, "ci_adj_level"] = level
 
 
 def in_sesoi_units(row: pd.Series) -> tuple[float, float, float]:

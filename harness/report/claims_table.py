@@ -22,7 +22,8 @@ from harness.spec.study_schema import ClaimSpec
 VERDICT_MARK = {V.REPRODUCED: "✅ reproduced", V.CONTRADICTED: "❌ contradicted", V.EQUIVALENT: "🟰 equivalent",
                 V.INCONCLUSIVE: "❔ inconclusive", V.NOT_TESTED: "— not tested", V.NOT_EXERCISED: "⊘ not exercised",
                 V.DESCRIBED: "📏 described", V.EVIDENCE: "· evidence", V.WITHDRAWN: "↩ withdrawn"}
-POST_HOC = "⚑"  # a claim written (or rewritten) after its runs
+POST_HOC = "⚑"  # a claim not registered before its runs (computed from git: spec.registration)
+EXPLORATORY = "exploratory"  # a decided row whose claim was not registered before its runs
 VERDICT_RULES = (
     "Verdicts: **equivalent** — the equivalence test (TOST at ±SESOI) rejects: no effect as large as the"
     " smallest effect of interest at this scale; **reproduced** / **contradicted** — the difference test"
@@ -36,7 +37,10 @@ VERDICT_RULES = (
     " equivalence tests together). Rows marked **evidence** (another condition of a statement) and"
     " **withdrawn** are in no family: their verdict in brackets is at the unadjusted α. A claim whose scenes"
     " disagree (scene × variant interaction significant, effects of opposite sign) is tested per scene and"
-    " labelled scene-dependent. " + POST_HOC + " marks a claim written or rewritten after its runs.")
+    " labelled scene-dependent. " + POST_HOC + " marks a claim not registered before its runs: git shows that"
+    " the claim (its text, test, arms and scenes and their definitions) or its place in the paper register"
+    " last changed in a commit that is not an ancestor of its first run's commit, or not yet committed; a"
+    " decided row so marked is **exploratory** (it keeps its verdict and its place in the family).")
 
 
 def _digits(row: pd.Series) -> int:
@@ -76,9 +80,22 @@ def needed_text(row: pd.Series) -> str:
 def deciding_p(row: pd.Series) -> float:
     """The family-corrected p that decided the row: the equivalence test's for an equivalent (or an
     equivalence-reproduced) row, else the difference test's."""
-    by_equivalence = row.verdict == V.EQUIVALENT or (row.verdict == V.REPRODUCED and (
-        row.expect == "equivalent" or (row.expect in ("not_higher", "not_lower") and row.p_tost_adj < stats.ALPHA)))
-    return float(row.p_tost_adj if by_equivalence else row.p_adj)
+    return float(row.p_tost_adj if V.by_equivalence(row) else row.p_adj)
+
+
+def late(row: pd.Series) -> bool:
+    """Was the row's claim registered after its runs (the computed ``registered_before_runs``)?"""
+    return row.get("registered_before_runs", "") == "no"
+
+
+def exploratory(row: pd.Series) -> bool:
+    """A decided (counted) row whose claim was registered after its runs."""
+    return late(row) and row.verdict in V.DECIDED and bool(row.get("counted", False))
+
+
+def mark_text(row: pd.Series) -> str:
+    """`` — exploratory ⚑`` for an exploratory row, `` ⚑`` for another row registered after its runs."""
+    return f" — {EXPLORATORY} {POST_HOC}" if exploratory(row) else f" {POST_HOC}" if late(row) else ""
 
 
 def p_decided_text(row: pd.Series) -> str:
@@ -99,9 +116,10 @@ def verdict_text(row: pd.Series) -> str:
     note = f" ({row.note})" if row.note else ""
     need = needed_text(row)
     raw = f" [{row.raw_verdict} at raw α]" if row.raw_verdict and row.verdict in (V.EVIDENCE, V.WITHDRAWN) else ""
-    flag = f" {POST_HOC}" if row.registered else ""
-    return (VERDICT_MARK[row.verdict] + raw + (" — scene-dependent" if scope else "") + note
-            + (f"; {need}" if need else "") + flag)
+    beyond = row.get("interval_note", "")
+    beyond = f"; {beyond}" if isinstance(beyond, str) and beyond else ""
+    return (VERDICT_MARK[row.verdict] + raw + (" — scene-dependent" if scope else "") + note + beyond
+            + (f"; {need}" if need else "") + mark_text(row))
 
 
 def role_text(row: pd.Series, decided: dict[str, str] | None = None) -> str:
@@ -132,14 +150,21 @@ def claims_markdown(frame: pd.DataFrame, decided: dict[str, str] | None = None) 
     families = sorted({f for f in frame.family if f})
     methods = sorted({m for m in frame.method if m})
     scales = sorted({r.sesoi_source for _, r in frame.iterrows() if r.sesoi_source})
-    changed = [r for _, r in frame.iterrows() if r.registered or r.withdrawn]
+    changed = [r for _, r in frame.iterrows() if late(r) or r.withdrawn]
     lines += ["", f"Families (every study's claims, as in `reports/index.md`): {'; '.join(families) or 'none tested'}.",
               "", VERDICT_RULES, "", f"Tests: {'; '.join(methods) or 'none run'}.", "",
               "Smallest effects of interest: one per metric, on its own scale (" + "; ".join(scales) + ")."]
     if changed:
-        lines += ["", "Claims written or withdrawn after their runs:", ""]
-        lines += [f"- **{r.id}**: " + (f"withdrawn — {r.withdrawn}" if r.withdrawn else f"registered {r.registered}")
-                  for r in changed]
+        lines += ["", "Claims withdrawn, or not registered before their runs (computed from git):", ""]
+        lines += [f"- **{r.id}**: " + "; ".join(filter(None, (
+            f"withdrawn — {r.withdrawn}" if r.withdrawn else "",
+            f"{EXPLORATORY if exploratory(r) else 'registered after its runs'} {POST_HOC}: {r.registration_note}"
+            if late(r) else ""))) for r in changed]
+    unknown = [r.id for _, r in frame.iterrows() if r.get("registered_before_runs", "") == "unknown"
+               and r.verdict in V.DECIDED]
+    if unknown:
+        why = sorted({r.registration_note for _, r in frame.iterrows() if r.id in unknown and r.registration_note})
+        lines += ["", f"Registered before their runs? Unknown for {', '.join(unknown)}: {'; '.join(why)}."]
     return "\n".join(lines)
 
 
@@ -153,7 +178,8 @@ def claims_latex(frame: pd.DataFrame, study: str) -> str:
     for _, r in frame.iterrows():
         lines.append(" & ".join([latex_escape(r.id), latex_escape(r.comparison).replace("−", "$-$"),
                                  latex_escape(effect_text(r)), latex_escape(sesoi_text(r)),
-                                 latex_escape(text(r.n)), latex_escape(p_decided_text(r)), r.verdict]) + r" \\")
+                                 latex_escape(text(r.n)), latex_escape(p_decided_text(r)),
+                                 r.verdict + (f" ({EXPLORATORY})" if exploratory(r) else "")]) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
     return "\n".join(lines)
 

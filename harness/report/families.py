@@ -5,7 +5,9 @@ page cannot decide its claims alone: ``family_verdicts(root)`` evaluates every s
 on its runs — from the tracking store, else from its report under ``root`` (``runs.csv``), else
 from the committed report in ``reports/`` — and decides them together, once per process. The
 index and each page read their rows from it, so the two always show the same verdict, the same
-p that decided it and the same family.
+p that decided it and the same family. Each claim's registration — was it registered before its
+runs? — is computed from git (``spec.registration``) on the runs it was tested on, before the
+decision, which names a counted row registered after its runs exploratory.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import pandas as pd
 from harness.analysis import verdicts as V
 from harness.report import COMMITTED_REPORTS
 from harness.report.results import collect, trainer_fingerprints
-from harness.spec import study_files
+from harness.spec import registration, study_files
 from harness.spec.metrics import add_differences
 from harness.spec.paper_register import Register
 from harness.spec.runs import Selection
@@ -52,7 +54,8 @@ def store_claims(name: str, register: Register, studies_dir: Path | None = None,
     n_done = int((data.df.status == "FINISHED").sum())
     if n_done == 0:
         return None
-    frame = V.evaluate(add_differences(data.df), data.study.claims, name, register)
+    frame = with_registration(V.evaluate(add_differences(data.df), data.study.claims, name, register), data.df,
+                              data.study.claims, name, studies_dir)
     return StudyClaims(name, data.study.question, frame, (Path(name) / "index.md").as_posix(), n_done,
                        ", ".join(data.code_versions()), tuple(data.trainer_fingerprints()))
 
@@ -64,26 +67,45 @@ def report_claims(name: str, root: Path, register: Register, studies_dir: Path |
     folder = Path(root) / name
     if not (folder / "runs.csv").is_file():
         return None
-    df = pd.read_csv(folder / "runs.csv")
+    df = pd.read_csv(folder / "runs.csv", dtype={"git_sha": str, "start_time": str})  # a sha of digits stays text
     n_done = int((df.status == "FINISHED").sum())
     if n_done == 0:
         return None
     page = (folder / "index.md").read_text() if (folder / "index.md").is_file() else ""
     code = m.group(1).strip() if (m := CODE_AT.search(page)) else ""
     study = load_study(name, studies_dir)
-    frame = V.evaluate(add_differences(df), study.claims, name, register)
+    frame = with_registration(V.evaluate(add_differences(df), study.claims, name, register), df, study.claims,
+                              name, studies_dir)
     return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),
                        n_done, code, tuple(trainer_fingerprints(df)), source="committed report")
+
+
+def with_registration(frame: pd.DataFrame, runs: pd.DataFrame, claims: tuple, study: str,
+                      studies_dir: Path | None) -> pd.DataFrame:
+    """``frame`` (``verdicts.evaluate``) with each claim's registration from git
+    (``spec.registration``): ``registered_commit``, ``role_commit``, ``first_run_commit``,
+    ``registered_before_runs`` (yes / no / unknown) and ``registration_note`` (why)."""
+    found = registration.registrations(study, claims, runs, Path(studies_dir or study_files.STUDIES_DIR))
+    out = frame.copy()
+    for i, r in out.iterrows():
+        reg = found.get(r.claim)
+        if reg is None:
+            continue
+        out.at[i, "registered_commit"], out.at[i, "role_commit"] = reg.claim_commit, reg.role_commit
+        out.at[i, "first_run_commit"], out.at[i, "registered_before_runs"] = reg.first_run_commit, reg.before_runs
+        out.at[i, "registration_note"] = reg.why
+    return out
 
 
 def decide_all(entries: list[StudyClaims]) -> list[StudyClaims]:
     """Every study's claims corrected together, one family per claim group."""
     frames = [e.frame.assign(study=e.study) for e in entries if not e.frame.empty]
     if not frames:
-        return entries
+        return [replace(e, frame=e.frame.drop(columns=V.INTERVAL, errors="ignore")) for e in entries]
     decided = V.decide(pd.concat(frames, ignore_index=True), label=EVERY_STUDY)
     return [replace(e, frame=decided[decided.study == e.study].drop(columns="study").reset_index(drop=True))
-            if not e.frame.empty else e for e in entries]
+            if not e.frame.empty else replace(e, frame=e.frame.drop(columns=V.INTERVAL, errors="ignore"))
+            for e in entries]
 
 
 @functools.lru_cache(maxsize=4)
@@ -110,8 +132,9 @@ def family_verdicts(root: Path, studies_dir: Path | None = None,
 
 
 def forget() -> None:
-    """Drop the cached decision (a test, or a process that has just written new runs)."""
+    """Drop the cached decision and git answers (a test, or a process that has just written new runs)."""
     _family_verdicts.cache_clear()
+    registration.forget()
 
 
 def study_frame(name: str, root: Path, studies_dir: Path | None = None,

@@ -3,8 +3,12 @@
 It opens, when some of its runs were made by another trainer than this checkout's, with a note
 saying so: which trainers, the command that refreshes them (``make reports``) and its expected
 time on this machine (``report.currency``: the plan and rates of ``harness.cli.reports_plan``);
-a current page has none. Then one row per statement of the paper (the register, ``studies/_paper.yaml``), counted once: the
-paper's numbers with the spread it reports for that configuration and the paper's own evidence
+a current page has none. Then, before any other section, one line per statement of the register
+(``glance_section``): the statement, the paper's number, our effect with the interval its verdict
+used (Holm-adjusted), the verdict (⚑ / exploratory: registered after its runs, computed from git)
+and a one-clause reason. Then the details: one row per statement of the paper (the register,
+``studies/_paper.yaml``), counted once: the paper's numbers with the spread it reports for that
+configuration and the paper's own evidence
 (is its difference distinguishable from its own spread?), the claim that decides the statement
 with its smallest effect of interest, our effect with its 95% CI, n and the family-corrected p
 that decided it, the verdict on the direction, and beside it the paper's *size* against ours.
@@ -31,10 +35,13 @@ from harness.analysis import verdicts as V
 from harness.report import USER_REPORTS
 from harness.report.answers import answers_markdown
 from harness.report.claims_table import (
+    EXPLORATORY,
     POST_HOC,
     VERDICT_MARK,
     VERDICT_RULES,
     effect_text,
+    exploratory,
+    mark_text,
     p_decided_text,
     sesoi_text,
     verdict_text,
@@ -43,7 +50,8 @@ from harness.report.currency import plan_frame, stale_note
 from harness.report.families import StudyClaims, decide_all, family_verdicts, forget
 from harness.report.findings import write_findings
 from harness.report.fmt import text
-from harness.report.forest import forest_plot
+from harness.report.forest import disagreements, forest_plot
+from harness.report.glance import glance_section
 from harness.spec.paper_register import Register, Statement
 from harness.spec.study_files import load_register
 from harness.spec.study_schema import CLAIM_GROUPS
@@ -82,7 +90,7 @@ def _claim_row(r: pd.Series, study: str, report: str) -> str:
 
 def _condition(r: pd.Series, study: str) -> str:
     """An evidence row inside a statement's row: ``secret3.dense_best_fast_b20k: −2.36 [...] (raw p …) [verdict]``."""
-    return f"`{study}.{r.id}`: {_ours(r)} [{r.raw_verdict or r.verdict}]"
+    return f"`{study}.{r.id}`: {_ours(r)} [{r.raw_verdict or r.verdict}]{mark_text(r)}"
 
 
 def statement_verdict(s: Statement, deciding: list[tuple[str, pd.Series]]) -> str:
@@ -113,16 +121,33 @@ def _statement_row(s: Statement, rows: dict[str, tuple[str, str, pd.Series]], nu
 
 
 def statement_tally(statements: list[Statement], rows: dict[str, tuple[str, str, pd.Series]]) -> str:
-    """``26 statements: 5 reproduced, 3 contradicted, … (4 of them decided by a claim written after its runs ⚑)``."""
+    """``26 statements: 5 reproduced, 3 contradicted, … (4 of them exploratory ⚑: …)``."""
     verdicts, late = [], 0
     for s in statements:
         r = rows.get(s.decided_by, ("", "", None))[2] if s.decided_by else None
         verdicts.append(r.verdict if r is not None else V.NOT_TESTED)
-        late += int(r is not None and bool(r.registered))
+        late += int(r is not None and exploratory(r))
     counts = pd.Series(verdicts, dtype=object).value_counts()
     tally = ", ".join(f"{int(counts[v])} {v}" for v in VERDICT_MARK if v in counts)
-    flagged = f" ({late} decided by a claim written after its runs {POST_HOC})" if late else ""
+    flagged = (f" ({late} of them {EXPLORATORY} {POST_HOC}: decided by a claim registered after its runs)"
+               if late else "")
     return f"{len(statements)} statements: {tally or 'none'}{flagged}"
+
+
+def registration_line(allf: pd.DataFrame) -> list[str]:
+    """How many counted rows were registered before their runs, by git (``spec.registration``)."""
+    if allf.empty or "registered_before_runs" not in allf:
+        return []
+    counted = allf[allf.counted.astype(bool)]
+    if counted.empty:
+        return []
+    answers = counted.registered_before_runs.value_counts()
+    why = sorted({n for n in counted[counted.registered_before_runs == "unknown"].registration_note if n})
+    unknown = f"; unknown: {int(answers.get('unknown', 0))} ({'; '.join(why)})" if answers.get("unknown", 0) else ""
+    return [f"Registered before their runs, computed from git (the commit that last changed each claim, its arms,"
+            f" scenes and place in the register against its first run's commit): {int(answers.get('yes', 0))} of the"
+            f" {len(counted)} counted rows; after them ({EXPLORATORY} {POST_HOC}): {int(answers.get('no', 0))}"
+            f"{unknown}.", ""]
 
 
 def _statement_section(title: str, statements: list[Statement], rows: dict[str, tuple[str, str, pd.Series]],
@@ -151,7 +176,7 @@ def _withdrawn_section(entries: list[StudyClaims]) -> list[str]:
              "| Study | Claim | Why withdrawn | On these runs | History |", "|---|---|---|---|---|"]
     for e, r in rows:
         history = text(r.get("history", "")) if "history" in r else ""
-        result = f"{_ours(r)} [{r.raw_verdict}]" + (f" ({r.note})" if r.note else "")
+        result = f"{_ours(r)} [{r.raw_verdict}]" + (f" ({r.note})" if r.note else "") + mark_text(r)
         lines.append(f"| {e.study} | **{r.id}**: {r.statement} | {r.withdrawn or '—'} | {result} | {history or '—'} |")
     return lines + [""]
 
@@ -169,6 +194,10 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     prints = sorted({f for e in entries for f in e.fingerprints})
     lines = ["# The answers: every statement of the paper on our runs", "",
              *(stale_note(prints, current, "make reports", *todo) if current else [])]
+    paper = [s for s in register.statements if s.family == "paper"]
+    lines += glance_section(paper, rows, f"The paper's {len(paper)} statements at a glance")
+    lines += glance_section([s for s in register.statements if s.family != "paper"], rows,
+                            "Metric conventions at a glance", legend=False)
     lines += ["Regenerate with `make reports` (or `study index --profile quick --out reports`). One row per statement of the paper"
               " (`studies/_paper.yaml`), counted once and decided by one claim; each claim's smallest effect of"
               " interest (SESOI) is its metric's, fixed once per metric on its own scale (docs/sesoi.md); the"
@@ -184,12 +213,14 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
         else:
             counts = allf[allf.group == group].verdict.value_counts() if len(allf) else pd.Series(dtype=int)
             tally = ", ".join(f"{int(counts.get(v, 0))} {v}" for v in VERDICT_MARK if counts.get(v, 0)) or "no claims"
+            late = sum(exploratory(r) for _, r in allf[allf.group == group].iterrows()) if len(allf) else 0
+            tally += f" ({late} of them {EXPLORATORY} {POST_HOC})" if late else ""
         if not fam:  # no claim of the group has the runs its tests need
             lines.append(f"- **{group}** ({what}): no hypotheses tested yet" + (
                 f" ({tally})." if frames and tally != "no claims" else "."))
             continue
         lines.append(f"- **{group}** ({what}): {fam} (difference and equivalence tests together). {tally}.")
-    lines += ["", VERDICT_RULES, ""]
+    lines += ["", *registration_line(allf), VERDICT_RULES, ""]
     for group, what in CLAIM_GROUPS.items():
         statements = [s for s in register.statements if s.family == group]
         if group in STATEMENT_FAMILIES and statements:
@@ -206,11 +237,22 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
         lines.append("")
     lines += _withdrawn_section(entries)
     if forest:
+        counted = allf[allf.counted.astype(bool)] if len(allf) else allf
+        odd = disagreements(counted) if len(counted) else []
+        check = ("Each interval excludes 0 (for a \"≈\" claim: lies outside ±SESOI) exactly when its difference test"
+                 " rejects, and lies inside ±SESOI exactly when its equivalence test does" + (
+                     "." if not odd else f", except for {', '.join(f'`{o}`' for o in odd)}, whose bootstrap or"
+                     " weakest-contrast interval is not its test's dual."))
         lines += ["## Every counted claim's effect", "",
                   f"![Every counted claim's effect in units of its smallest effect of interest]({forest})", "",
-                  "Effects and 95% CIs divided by each claim's SESOI, signed so that the direction the claim"
-                  " expects is to the right (grey: ±1, effects too small to matter); diamonds: the paper's own"
-                  " effect per dataset; colour: the verdict.", ""]
+                  "Effects with the interval each verdict used, divided by each claim's SESOI, signed so that the"
+                  " direction the claim expects is to the right (grey: ±1, effects too small to matter): one Holm"
+                  " procedure over each family's difference and equivalence p-values together; a row rejected at"
+                  " Holm step i of m is drawn at confidence 1 − α/(m − i + 1) (an equivalence at"
+                  " 1 − 2α/(m − i + 1), TOST's interval), a row not rejected at 1 − α/(m − j + 1) of the"
+                  " step j where Holm stopped. "
+                  + check + f" Diamonds: the paper's own effect per dataset; colour: the verdict; {POST_HOC}:"
+                  " registered after its runs.", ""]
     quiet = [e for e in entries if e.frame.empty]
     if quiet:
         lines += ["Studies with runs but no claims: " + ", ".join(f"[{e.study}]({e.report})" for e in quiet) + ".", ""]

@@ -6,6 +6,8 @@
   front joined, the smallest budget within 0.1 dB of the best starred;
   ``speed_accuracy_scenes_plot``: the same, one row per scene (``analysis.speed_accuracy_scenes``);
 - ``stability_plot``: per difficulty cell and method, mean +- std, spread and failure rate.
+
+The x–t haze grids (``xt_grid``) are ``report.xt_figures``; they write through ``save_figure``.
 """
 
 from __future__ import annotations

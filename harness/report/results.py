@@ -10,6 +10,7 @@ determinism domain, metrics and key params. Reading never creates a store.
 
 from __future__ import annotations
 
+import datetime
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -105,9 +106,19 @@ def trainer_fingerprints(df: pd.DataFrame) -> list[str]:
     return sorted({str(f) if isinstance(f, str) and f else "unrecorded" for f in col})
 
 
+def start_text(start_ms: int) -> str:
+    """A run's MLflow start time (ms since the epoch) as UTC ISO 8601 to the millisecond, which
+    sorts as it reads; "" when not recorded."""
+    if not start_ms:
+        return ""
+    stamp = datetime.datetime.fromtimestamp(start_ms / 1000, tz=datetime.timezone.utc)
+    return stamp.isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
 def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]) -> pd.DataFrame:
     """One row per planned run with its status, failure, error, provenance (trainer fingerprint,
-    model digest, determinism domain), metrics and key params."""
+    model digest, the commit it was made from and when it started: ``git_sha``, ``start_time``,
+    which ``spec.registration`` reads; determinism domain), metrics and key params."""
     rows = []
     for p in planned:
         rec = chosen.get(p.key)
@@ -117,10 +128,11 @@ def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]
             row[name] = float(p.params[name]) if name in p.params else math.nan
         if rec is None:
             row.update(status="MISSING", failure="", error="", run_id="", trainer_fingerprint="", model_digest="",
-                       command=standalone_command(p.spec))
+                       git_sha="", start_time="", command=standalone_command(p.spec))
         else:
             row.update(status=rec.status, failure=rec.failure, error=rec.error, run_id=rec.run_id,
                        trainer_fingerprint=rec.tags.get("trainer_fingerprint", ""),
+                       git_sha=rec.tags.get("git_sha", ""), start_time=start_text(rec.start_time),
                        model_digest=rec.tags.get("model_digest", ""),
                        command=standalone_command(p.spec, rec.tags.get("determinism.torch_threads", "")))
             row.update({col: rec.tags.get(tag, "") for col, tag in DOMAIN_COLUMNS.items()})

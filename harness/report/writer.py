@@ -7,7 +7,8 @@ Written files:
 
 - ``table.md`` / ``table.tex``: the paper-layout tables (``report.tables``), a Welch t-test
   table against the baseline, run counts and the list of failed runs;
-- ``strip_<metric>.png``, ``speed_accuracy.png``, ``stability.png`` as the study asks;
+- ``strip_<metric>.png``, ``speed_accuracy.png``, ``stability.png``, ``xt_grid_<scene>.png``
+  (``report.xt_figures``) as the study asks;
 - ``diagnostics/<variant>/<scene>/...``: diagnostic images the runs logged under the
   ``diagnostics/`` artifact path (lowest finished seed with figures per cell);
 - ``runs.csv`` (one row per run) and ``summary.csv`` (mean, std, CI, t, p per cell);
@@ -45,6 +46,7 @@ from harness.report import (
     sections,
     speed_accuracy_text,
     tables,
+    xt_figures,
 )
 from harness.report.results import ReportData, collect
 from harness.spec.runs import Selection, command_line
@@ -242,7 +244,7 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
     (out / "table.tex").write_text(main.tex + "".join(f"\n{s.tex}\n" for s in extra if s.tex))
     if main.summaries:
         pd.concat(main.summaries.values(), ignore_index=True).to_csv(out / "summary.csv", index=False)
-    figures = sections.figures(data, out)
+    figures = sections.figures(data, out) + xt_figures.figures(data, out)
     diags = sections.diagnostics(data, out)
     (out / "index.md").write_text(study_page(data, out, main, extra, figures, diags))
     (out / FINGERPRINT).write_text(stamp + "\n")

@@ -18,6 +18,21 @@ parameters are kept beside the videos in ``known_size.npz`` and described in
 ``known_size.json``. It lives in the harness, not in ``ftgspp.data.synthetic``: it is an
 instrument for checking the harness's budget answer, and it draws with the trainer's renderer
 as it is.
+
+With ``ground_truth: true`` it also writes the held-out camera's (``cam00``) ground truth in
+the files the diagnostics read (``ftgspp/diagnostics/motion.py`` ``load_ground_truth``,
+``ftgspp/diagnostics/truth.py``), so that a run on it scores role switching against the truth: each true
+Gaussian is one object that never hands its pixels to another, so the true Gaussians' own
+score is the level of "no role switching" (``motion_role_switch_gt``). ``gt/objects/cam00.npy``
+(uint16 ``[F, H, W]``) holds, per pixel, 1 + the index of the *moving* true Gaussian that
+carries it (the largest compositing weight T·α there, at least ``CARRY_MIN``), 0 where a
+still Gaussian or nothing carries it; ``gt/depth`` the carrier's centre depth (NaN where
+nothing carries the pixel); ``gt/flow3d`` the true velocities composited like a colour (Σ T_i α_i
+v_i / Σ T_i α_i, as the diagnostics composite a model's; 0 where nothing carries the pixel), the
+velocity of what the pixel shows where Gaussians overlap; ``gt/clean`` the frames (the videos
+are lossless and noise-free already); ``gt/gaussians.npz`` the true Gaussians. Only
+``cam00``: the training cameras have no ground truth, so the initialisation's scores against
+it (``ftgspp/init/quality.py``, which need every training camera's) stay off, as without it.
 """
 
 from __future__ import annotations
@@ -81,6 +96,75 @@ def render_frames(g: dict[str, np.ndarray], cam: Any, times: np.ndarray, t_mid: 
     return np.stack(frames)
 
 
+CARRY_MIN = 1.0 / 255  # a weight below one 8-bit level carries nothing
+CARRIER_CHUNK = 128  # Gaussians rendered as one-hot colour channels per pass
+
+
+def carriers(g: dict[str, np.ndarray], cam: Any, times: np.ndarray, t_mid: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame and pixel, the true Gaussian with the largest compositing weight T_i α_i, that
+    weight, and the velocities composited with those weights: int64 ``[F, H, W]`` (−1 where no
+    weight reaches ``CARRY_MIN``), float32 ``[F, H, W]`` and float32 ``[F, H, W, 3]`` (0 there).
+    The weights are renders of one-hot colours with the trainer's renderer (a Gaussian's channel
+    of the image is its weight), ``CARRIER_CHUNK`` channels a pass; the velocity is a render
+    of the velocities as colours, over its alpha."""
+    import torch
+
+    from ftgspp.render import render
+
+    t = {name: torch.as_tensor(v, dtype=torch.float32) for name, v in g.items()}
+    k = len(g["means"])
+    viewmat = torch.eye(4)
+    viewmat[:3, :3] = torch.as_tensor(cam.R, dtype=torch.float32)
+    viewmat[:3, 3] = torch.as_tensor(cam.T, dtype=torch.float32)
+    K = torch.as_tensor(cam.K, dtype=torch.float32)
+    index = np.full((len(times), cam.height, cam.width), -1, dtype=np.int64)
+    weight = np.zeros((len(times), cam.height, cam.width), dtype=np.float32)
+    velocity = np.zeros((len(times), cam.height, cam.width, 3), dtype=np.float32)
+    with torch.no_grad():
+        for f, time in enumerate(times):
+            means = t["means"] + t["velocities"] * float(time - t_mid)
+            out = render(means, t["quats"], t["scales"], t["opacities"], t["velocities"], viewmat, K, cam.width,
+                         cam.height, torch.zeros(3), backend="cpu")
+            alpha = out.alpha.numpy()  # [H, W, 1]
+            velocity[f] = np.where(alpha >= CARRY_MIN, out.image.numpy() / np.maximum(alpha, CARRY_MIN), 0.0)
+            for start in range(0, k, CARRIER_CHUNK):
+                n = min(CARRIER_CHUNK, k - start)
+                onehot = torch.zeros(k, n)
+                onehot[torch.arange(start, start + n), torch.arange(n)] = 1.0
+                w = render(means, t["quats"], t["scales"], t["opacities"], onehot, viewmat, K, cam.width,
+                           cam.height, torch.zeros(n), backend="cpu").image.numpy()  # [H, W, n]
+                best, arg = w.max(axis=-1), w.argmax(axis=-1)
+                better = best > weight[f]
+                weight[f][better], index[f][better] = best[better], start + arg[better]
+    index[weight < CARRY_MIN] = -1
+    velocity[index < 0] = 0.0
+    return index, weight, velocity
+
+
+def write_ground_truth(out: Path, g: dict[str, np.ndarray], cam: Any, times: np.ndarray, t_mid: float,
+                       frames: np.ndarray) -> None:
+    """``out/gt/``: camera ``cam``'s carrier ids, depth, scene flow and noise-free frames
+    (``frames``, uint8 ``[F, H, W, 3]``), and the true Gaussians (module docstring)."""
+    gt = out / "gt"
+    for sub in ("objects", "depth", "flow3d", "clean"):
+        (gt / sub).mkdir(parents=True, exist_ok=True)
+    index, _, velocity = carriers(g, cam, times, t_mid)
+    carried = index >= 0
+    idx = np.where(carried, index, 0)
+    moving = g["moving"][idx] > 0  # [F, H, W]
+    objects = np.where(carried & moving, idx + 1, 0).astype(np.uint16)
+    centres = g["means"][None] + g["velocities"][None] * (times - t_mid)[:, None, None]  # [F, k, 3]
+    z = (centres @ np.asarray(cam.R).T + np.asarray(cam.T))[..., 2]  # [F, k]
+    depth = np.where(carried, np.take_along_axis(z, idx.reshape(len(times), -1), axis=1).reshape(idx.shape), np.nan)
+    flow = velocity
+    np.save(gt / "objects" / f"{cam.name}.npy", objects)
+    np.save(gt / "depth" / f"{cam.name}.npy", depth.astype(np.float32))
+    np.save(gt / "flow3d" / f"{cam.name}.npy", flow.astype(np.float16))
+    np.save(gt / "clean" / f"{cam.name}.npy", np.asarray(frames, dtype=np.uint8))
+    np.savez(gt / "gaussians.npz", **g, t_mid=t_mid)
+
+
 def generate(out: str | Path, layout: str = "dynerf", preset: str = PRESET, seed: int = 0, **args: Any) -> Path:
     """Write the scene into ``out`` (the signature of ``ftgspp.data.synthetic.build.generate``)."""
     from ftgspp.data.synthetic.formats import poses_bounds_row, write_video
@@ -97,13 +181,17 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = PRESET, seed
     t_mid = float(times[-1]) / 2
     rows = {}
     for cam in cams:
-        write_video(out / f"{cam.name}.mp4", render_frames(g, cam, times, t_mid), cfg.rig.fps, "ffv1")
+        frames = render_frames(g, cam, times, t_mid)
+        write_video(out / f"{cam.name}.mp4", frames, cfg.rig.fps, "ffv1")
+        if cfg.ground_truth and cam.name == cams[0].name:  # the held-out camera
+            write_ground_truth(out, g, cam, times, t_mid, frames)
         depth = (g["means"] @ cam.R.T + cam.T)[:, 2]
         rows[cam.name] = poses_bounds_row(cam, max(0.1, float(depth.min()) - 1.0), float(depth.max()) + 1.0)
     np.save(out / "poses_bounds.npy", np.stack([rows[n] for n in sorted(rows)]).astype(np.float64))
     np.savez(out / "known_size.npz", **g, t_mid=t_mid)
     (out / "known_size.json").write_text(json.dumps({
-        "k": cfg.k, "moving": int(g["moving"].sum()), "params": {**{k: v for k, v in asdict(cfg).items() if k != "rig"},
+        "k": cfg.k, "moving": int(g["moving"].sum()), "params": {**{k: v for k, v in asdict(cfg).items()
+                                                                   if k != "rig" and (k != "ground_truth" or v)},
                    **{f: getattr(cfg.rig, f) for f in RIG_FIELDS}}, "test_cameras": [cams[0].name],
         "gaussians": "known_size.npz: means at t_mid [k, 3], velocities units/s, scales (activated), quats (w, x,"
                      " y, z), opacities, colors (RGB), moving (0/1);"
@@ -114,23 +202,11 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = PRESET, seed
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m harness.run.known_size --out DIR [--seed N] [--set k=500 ...]``: write the scene
-    (the command a study run's ``command`` column gives for it); exit status 2 on bad input."""
-    import argparse
-    import sys
+    """``python -m harness.run.known_size --out DIR [--seed N] [--set k=500 ...]``: write the scene; exit status 2 on bad
+    input (``harness.run.writer_cli``)."""
+    from harness.run import writer_cli
 
-    p = argparse.ArgumentParser(prog="python -m harness.run.known_size", description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--set", action="append", default=[], metavar="KEY=JSON", help="a scene argument, e.g. k=500")
-    args = p.parse_args(argv)
-    try:
-        extra = {k: json.loads(v) for k, _, v in (item.partition("=") for item in args.set)}
-        generate(args.out, seed=args.seed, **extra)
-    except (InputError, json.JSONDecodeError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    return 0
+    return writer_cli.main("python -m harness.run.known_size", __doc__.split("\n\n")[0], generate, "k=500", argv)
 
 
 if __name__ == "__main__":

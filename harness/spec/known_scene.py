@@ -31,6 +31,9 @@ class KnownSizeConfig:
     moving_share: float = 0.25  # the share of them that moves (in straight lines)
     speed: float = 0.5  # units/s of every moving Gaussian
     sigma_px: float = 3.0  # typical blob size: standard deviation in pixels of a full-size view at the target
+    # also write the held-out camera's ground truth (gt/: the true Gaussians, per-pixel carrier ids
+    # of the moving ones, depth, scene flow, the noise-free frames) for the diagnostics' scores
+    ground_truth: bool = False
     seed: int = 0
     layout: str = "dynerf"
     preset: str = PRESET
@@ -54,4 +57,6 @@ def resolve(args: dict[str, Any]) -> KnownSizeConfig:
         raise InputError(PRESET, f"writes the dynerf layout only, not '{cfg.layout}'")
     if cfg.k < 1 or not 0 <= cfg.moving_share <= 1 or rig.n_cameras < 3 or rig.n_frames < 2:
         raise InputError(PRESET, "needs k >= 1, 0 <= moving_share <= 1, n_cameras >= 3 and n_frames >= 2")
+    if cfg.ground_truth and cfg.k >= 2**16 - 1:
+        raise InputError(PRESET, f"ground_truth labels pixels with 16-bit ids: needs k < 65535, got {cfg.k}")
     return cfg

@@ -224,6 +224,8 @@ for _m in (
     # what the initial point set is made of (ftgspp/init/quality.py; also each run's init.json)
     Metric("init_matcher_dense", "dense matching (1) or SIFT (0)", 0, NEITHER, claimable=False),
     Metric("init_points_total", "real initial points", 0, NEITHER, claimable=False),
+    Metric("init_keyframes", "keyframes", 0, NEITHER, claimable=False),
+    Metric("init_keyframe_interval_s", "time between keyframes (s)", 3, NEITHER, claimable=False, unit="s"),
     Metric("init_points_per_keyframe_min", "real points, fewest in a keyframe", 0, NEITHER, claimable=False),
     Metric("init_points_per_keyframe_median", "real points per keyframe", 0, NEITHER, claimable=False),
     Metric("init_points_per_keyframe_max", "real points, most in a keyframe", 0, NEITHER, claimable=False),
@@ -235,6 +237,15 @@ for _m in (
            unit="units/s"),
     Metric("init_velocity_error_static", "initial velocity error, static (units/s)", 3, LOWER, claimable=False,
            unit="units/s"),
+    Metric("init_dense_coverage", "share of the views the dense points cover (init.dense_check)", 2, NEITHER,
+           claimable=False),
+    Metric("init_dense_sift_disagreement", "dense flow's median depth gap to SIFT (init.dense_check)", 3, NEITHER,
+           claimable=False),
+    Metric("init_dense_fallback", "dense matching not trusted: SIFT instead (1) or dense kept (0)", 0, NEITHER,
+           claimable=False),
+    Metric("init_depth_error_median", "initial points' relative depth error, median", 4, LOWER, claimable=False),
+    Metric("init_depth_error_p90", "initial points' relative depth error, 90th percentile", 4, LOWER,
+           claimable=False),
     # diagnostics (ftgspp.diagnostics.diagnose via the trainer)
     Metric("lifetime_long_on_static", source=DIAGNOSTICS),
     Metric("lifetime_short_on_dynamic", source=DIAGNOSTICS),
@@ -244,12 +255,23 @@ for _m in (
     Metric("lifetime_short_share_static", source=DIAGNOSTICS),
     Metric("lifetime_short_share_transient", source=DIAGNOSTICS),  # scenes with objects that exist for part of the clip
     Metric("lifetime_transient_contrast", source=DIAGNOSTICS),
+    # secret 1's stratification: Hartigan's dip of the drawn Gaussians' Δt/T capped at 1
+    # (ftgspp/diagnostics/lifetimes.py lifetime_dip); the excess is D minus the uniform null's 95th percentile
+    Metric("lifetime_dip", "lifetime dip D (Hartigan)", 4, source=DIAGNOSTICS),
+    Metric("lifetime_dip_p", "lifetime dip test p-value", 4, NEITHER, DIAGNOSTICS, claimable=False),
+    Metric("lifetime_dip_excess", "lifetime dip above the unimodal null's 95th percentile", 4, source=DIAGNOSTICS),
     Metric("motion_epe_dynamic", better=LOWER, source=DIAGNOSTICS),
     Metric("motion_leak_static", better=LOWER, source=DIAGNOSTICS),
     Metric("motion_role_switch", better=LOWER, source=DIAGNOSTICS),
+    # scenes drawn from known Gaussians (the known-size scene with ground_truth: true): the truth's own
+    # role switching through the same scoring, and the model's excess over it
+    Metric("motion_role_switch_gt", "role switch of the true Gaussians", 4, LOWER, DIAGNOSTICS),
+    Metric("motion_role_switch_excess", "role switch above the true Gaussians'", 4, LOWER, DIAGNOSTICS),
     Metric("xt_slice_mae", source=DIAGNOSTICS),
     Metric("flicker_static", source=DIAGNOSTICS),
-    Metric("flicker_static_gt", source=DIAGNOSTICS),
+    Metric("flicker_static_gt", source=DIAGNOSTICS),  # the held-out camera's noise-free frames (gt/clean)
+    Metric("flicker_static_gt_noisy", "static flicker of the recorded frames (noise, codec)", 4, NEITHER, DIAGNOSTICS),
+    Metric("flicker_static_excess", "static flicker above the noise-free reference", 4, LOWER, DIAGNOSTICS),
     Metric("relocated_total", "Gaussians relocated per run", 0, NEITHER),
     Metric("relocated", "Gaussians relocated at a step", 0, NEITHER, claimable=False),  # a step metric
     Metric("lpips_missing", "scored without LPIPS (weights missing)", 0, NEITHER, EVALUATION, claimable=False,
@@ -291,8 +313,10 @@ SMALLEST_EFFECTS: dict[str, tuple[float, str]] = {
                                         "lifetime_short_share_dynamic", "lifetime_short_share_static",
                                         "lifetime_short_share_transient", "lifetime_transient_contrast")},
     **{m: (0.05, "motion") for m in ("motion_epe_dynamic", "motion_leak_static")},
-    "motion_role_switch": (0.05, "role-switch"),
-    **{m: (0.002, "flicker") for m in ("flicker_static", "flicker_static_gt")},
+    **{m: (0.015, "role-switch") for m in ("motion_role_switch", "motion_role_switch_gt", "motion_role_switch_excess")},
+    **{m: (0.002, "flicker") for m in ("flicker_static", "flicker_static_gt", "flicker_static_gt_noisy",
+                                       "flicker_static_excess")},
+    **{m: (0.025, "lifetime-dip") for m in ("lifetime_dip", "lifetime_dip_excess")},
 }
 for _name, (_value, _scale) in SMALLEST_EFFECTS.items():
     register(replace(_REGISTRY[_name], smallest_effect=_value, sesoi_scale=_scale))

@@ -11,6 +11,7 @@ import shlex
 from dataclasses import dataclass, field
 
 from harness.spec.known_scene import PRESET as KNOWN_SIZE
+from harness.spec.sphere_scene import PRESET as SPHERES
 from harness.spec.study_files import require
 from harness.spec.study_schema import StudyScene, StudySpec, plural
 
@@ -131,6 +132,10 @@ SYNTH_FLAGS = {"layout": "--layout", "preset": "--preset", "seed": "--seed", "n_
                "noise": "--noise", "speed": "--speed", "codec": "--codec"}
 
 
+# the harness's own scene presets and the modules that write them (``python -m MODULE --out ...``)
+HARNESS_WRITERS = {KNOWN_SIZE: "harness.run.known_size", SPHERES: "harness.run.spheres"}
+
+
 def standalone_command(run: RunSpec, threads: str = "") -> str:
     """Shell commands that reproduce ``run`` without the harness: generate its synthetic scene
     (if it has one) and train it with every override the study added. ``threads``: the torch
@@ -138,8 +143,9 @@ def standalone_command(run: RunSpec, threads: str = "") -> str:
     depend on it in the default determinism mode)."""
     parts = []
     scene = run.scene
-    if scene.synth is not None and scene.synth.get("preset") == KNOWN_SIZE:  # the harness's own scene
-        synth = ["python", "-m", "harness.run.known_size", "--out", scene.synth_dir, "--seed", str(scene.synth["seed"])]
+    writer = HARNESS_WRITERS.get(scene.synth.get("preset")) if scene.synth is not None else None
+    if writer:  # the harness's own scenes have their own writers
+        synth = ["python", "-m", writer, "--out", scene.synth_dir, "--seed", str(scene.synth["seed"])]
         synth += [f"--set={key}={json.dumps(value)}" for key, value in scene.synth.items()
                   if key not in ("preset", "seed", "layout")]
         parts.append(" ".join(shlex.quote(p) for p in synth))

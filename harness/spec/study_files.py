@@ -330,7 +330,7 @@ def _claims(claims: tuple[ClaimSpec, ...], where: str, variants: set[str], scene
             raise InputError(f"{at}.metric", f"{err}; a claim needs one (docs/sesoi.md)") from None
         out.append(dataclasses.replace(
             c, statement=" ".join(c.statement.split()), withdrawn=" ".join(c.withdrawn.split()),
-            registered=" ".join(c.registered.split()), history=tuple(" ".join(h.split()) for h in c.history),
+            history=tuple(" ".join(h.split()) for h in c.history),
             sesoi=value, sesoi_source=f"docs/sesoi.md, {scale}",
             contrasts=tuple(tuple((v, float(k)) for v, k in w) for w in c.contrasts)))
     return tuple(out)

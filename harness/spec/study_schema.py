@@ -68,6 +68,7 @@ class Plot(StrEnum):
     strip = "strip"
     speed_accuracy = "speed_accuracy"
     stability = "stability"
+    xt_grid = "xt_grid"  # per scene: |render − noise-free ground truth| x–t slices, variants × seeds
 
 
 class Comparison(StrEnum):
@@ -268,10 +269,11 @@ class ClaimSpec:
     ``group`` names the family the claim is corrected in (``CLAIM_GROUPS``); a ``paper`` claim
     belongs to a statement of the paper register (``studies/_paper.yaml``), which says whether it
     decides the statement or is evidence shown inside its row. ``requires``: what must be present
-    for the claim's mechanism to be exercised (``Requires``). ``registered``: empty when the claim
-    was written before its runs; else when and why it was written or rewritten after them (its
-    verdict is marked). ``withdrawn``: why it no longer counts — a registered claim is never
-    deleted after its runs, its result stays in view. ``history``: what changed and why.
+    for the claim's mechanism to be exercised (``Requires``). Whether a claim was registered
+    before its runs is not written here: it is computed from git (``spec.registration``: the
+    commit that last changed the claim, its arms and scenes, against its first run's commit).
+    ``withdrawn``: why it no longer counts — a registered claim is never deleted after its runs,
+    its result stays in view. ``history``: what changed and why (notes, not part of the registration).
     ``statement`` (file key ``claim``) is whitespace normalised.
     """
 
@@ -297,7 +299,6 @@ class ClaimSpec:
     among: tuple[str, ...] = ()
     requires: tuple[Requires, ...] = ()  # all must be present (file: a list of {metric, min} / {metric, above})
     needs: str = ""  # real data the claim needs; "not tested" rows say so
-    registered: str = ""  # "": written before its runs; else when and why it was written after them
     withdrawn: str = ""  # why it no longer counts (its result stays in view)
     history: tuple[str, ...] = ()  # what changed since it was first registered, and why
     sesoi: float = derived(0.1)  # from the metric registry (the loader fills it in)

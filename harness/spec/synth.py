@@ -14,11 +14,12 @@ def validate_synth(scene: StudyScene) -> None:
 
     args = dict(scene.synth)
     where = f"scene '{scene.name}' synth"
-    from harness.spec import known_scene
+    from harness.spec import known_scene, sphere_scene
 
-    if args.get("preset") == known_scene.PRESET:
+    own = {known_scene.PRESET: known_scene.resolve, sphere_scene.PRESET: sphere_scene.resolve}  # the harness's scenes
+    if args.get("preset") in own:
         try:
-            known_scene.resolve({k: v for k, v in args.items() if k != "preset"})
+            own[args["preset"]]({k: v for k, v in args.items() if k != "preset"})
         except (InputError, TypeError) as err:
             raise InputError(where, str(err)) from None
         return

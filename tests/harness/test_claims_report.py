@@ -79,7 +79,7 @@ def test_forest_plot_draws_each_tested_claim_in_sesoi_units(tmp_path: Path):
     from harness.report.forest import forest_plot, paper_points
 
     f = frame().assign(study="secret5")
-    assert forest_plot(f, tmp_path / "forest.png").read_bytes()[:4] == b"\x89PNG"
+    assert forest_plot(f, tmp_path / "forest.png").path.read_bytes()[:4] == b"\x89PNG"
     row = f.iloc[0]
     assert paper_points(row) == [("DyNeRF", pytest.approx(0.34 / 0.3))]
     lower = row.copy()
@@ -106,6 +106,11 @@ def test_report_and_index_end_to_end_with_the_fake_trainer(tmp_path: Path, monke
     write_report("mini", studies_dir=studies, reports_root=Path("reports"), echo=lambda s: None)
     claims = pd.read_csv("reports/mini/claims.csv")
     assert list(claims.id) == ["cc_mean", "cc_spread", "motion", "psnr_ssim"]
+    made = pd.read_csv("reports/mini/runs.csv", dtype={"git_sha": str, "start_time": str})
+    assert made.git_sha.str.fullmatch(r"[0-9a-f]{40}(-dirty)?").all()  # the commit each run was made from
+    assert made.start_time.str.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z").all()  # UTC, sorts as it reads
+    # these study files are in no repository: whether they were registered before the runs is unknown
+    assert set(claims.registered_before_runs) == {"unknown"} and "not in a git checkout" in claims.registration_note[0]
     assert claims.verdict[2] == V.NOT_TESTED and claims.n[0] == "3 vs 3"
     assert claims.effect[0] == pytest.approx(0.5)  # the fake adds 0.5 dB with colour correction
     index = Path("reports/mini/index.md").read_text()

@@ -23,7 +23,7 @@ STUDY = {
     "profiles": {p: {"seeds": 3, "overrides": ["profile=smoke"], "scenes": [{"name": "easy", "synth": {}}]}
                  for p in ("quick", "paper")},
     "claims": [{"id": "cc_sharper", "claim": "Colour correction lowers the sharpness score.", "metric": "sharpness",
-                "test": "mean", "a": "cc", "b": "baseline", "expect": "lower"}],
+                "test": "mean", "a": "cc", "b": "baseline", "scenes": ["easy"], "expect": "lower"}],
 }
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from ftgspp.data.synthetic.presets import resolve_config
 from ftgspp.errors import InputError
-from harness.run.scenes import MARKER, ensure_scene
+from harness.run.scenes import MARKER, WRITER_VERSION, ensure_scene
 from harness.spec.study_schema import StudyScene
 from harness.spec.synth import validate_synth
 
@@ -41,9 +41,25 @@ def test_a_scene_written_by_ftgspp_synth_with_the_same_args_is_adopted(tmp_path:
     params = dataclasses.asdict(resolve_config("studio", 0, color_shift=2.0))
     params = {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}
     (tmp_path / "s" / "gt").mkdir(parents=True)
-    (tmp_path / "s" / "gt" / "scene.json").write_text(json.dumps({"layout": "dynerf", "params": params}))
+    meta = {"layout": "dynerf", "params": params, "files": {"clean": "clean/{camera}.npy"}}
+    (tmp_path / "s" / "gt" / "scene.json").write_text(json.dumps(meta))
     assert not ensure_scene(scene, lambda *a, **k: pytest.fail("must not regenerate"), echo=lambda s: None)
     assert (tmp_path / "s" / MARKER).is_file()
+
+
+def test_a_scene_of_an_older_writer_is_regenerated(tmp_path: Path) -> None:
+    # without the held-out camera's noise-free frames (written since issue 54), or with a marker of
+    # the writer before, a folder is written again; the arguments alone would not tell
+    scene = _scene(tmp_path)
+    params = dataclasses.asdict(resolve_config("studio", 0))
+    params = {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}
+    (tmp_path / "s" / "gt").mkdir(parents=True)
+    (tmp_path / "s" / "gt" / "scene.json").write_text(json.dumps({"layout": "dynerf", "params": params}))
+    made = []
+    assert ensure_scene(scene, lambda out, *a, **k: made.append(Path(out).mkdir(parents=True)), echo=lambda s: None)
+    assert made and json.loads((tmp_path / "s" / MARKER).read_text())["_writer"] == WRITER_VERSION
+    (tmp_path / "s" / MARKER).write_text(json.dumps(dict(scene.synth), sort_keys=True))  # an old marker
+    assert ensure_scene(scene, lambda out, *a, **k: Path(out).mkdir(parents=True), echo=lambda s: None)
 
 
 def test_bad_generator_arguments_are_input_errors(tmp_path: Path) -> None:

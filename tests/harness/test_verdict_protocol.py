@@ -243,10 +243,18 @@ def test_evidence_is_shown_but_not_counted_and_a_withdrawn_claim_stays_in_view()
 
 
 def test_the_size_judgement_reads_the_papers_effect_against_our_ci():
-    assert V.size_text("DyNeRF=0.11;SelfCap=-0.18", 0.56, 1.04) == \
-        "DyNeRF: larger than the paper's; SelfCap: larger than the paper's"
-    assert V.size_text("DyNeRF=0.78", 0.66, 1.01) == "DyNeRF: as large as the paper's"
-    assert V.size_text("DyNeRF=0.34", -0.30, 0.14) == "DyNeRF: smaller than the paper's"
+    # ours +0.80 [0.56, 1.04]: larger than DyNeRF's +0.11; SelfCap's −0.18 points the other way
+    assert V.size_text("DyNeRF=0.11;SelfCap=-0.18", 0.80, 0.56, 1.04) == \
+        "DyNeRF: larger than the paper's; SelfCap: opposite direction"
+    assert V.size_text("DyNeRF=0.78", 0.83, 0.66, 1.01) == "DyNeRF: as large as the paper's"
+    assert V.size_text("DyNeRF=0.34", -0.08, -0.30, 0.14) == "DyNeRF: opposite direction"
+    assert V.size_text("DyNeRF=0.34", 0.05, -0.04, 0.14) == "DyNeRF: smaller than the paper's"
+    # a negative effect is read along its own direction: ours −0.1 is smaller than the paper's −0.5
+    assert V.size_text("DyNeRF=-0.5", -0.1, -0.2, 0.0) == "DyNeRF: smaller than the paper's"
+    assert V.size_text("DyNeRF=-0.5", -0.9, -1.2, -0.6) == "DyNeRF: larger than the paper's"
+    # SD ratios against 1: the paper's ×0.36 (lower) beside our ×2.3 is the opposite direction
+    assert V.size_text("DyNeRF=0.36", 2.3, 1.5, 4.3, "variance") == "DyNeRF: opposite direction"
+    assert V.size_text("DyNeRF=0.36", 0.8, 0.6, 0.95, "variance") == "DyNeRF: smaller than the paper's"
 
 
 def test_the_committed_register_counts_every_paper_claim_once():

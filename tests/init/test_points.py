@@ -222,6 +222,8 @@ def test_times_are_jittered_within_half_a_keyframe_interval(scene):
     assert np.all(np.abs(off) <= half + 1e-6)
     assert off.min() < -0.8 * half and off.max() > 0.8 * half  # spread over the interval
     assert np.all(pts.spacing > 0) and np.all(np.isfinite(pts.velocities))
+    # the stride in the clip's terms, as secret 3's tables show it beside the stride
+    assert pts.stats["init_keyframes"] == 3 and pts.stats["init_keyframe_interval_s"] == pytest.approx(STRIDE / FPS)
 
 
 def test_random_points_are_inside_the_depth_range_of_a_training_camera(scene):

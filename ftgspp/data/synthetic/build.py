@@ -7,7 +7,8 @@ line, one on a circular arc while spinning -- seen by an arc of pinhole cameras
 shift and sensor noise, like a real rig. Output is written in the DyNeRF or the
 EasyVolcap layout, or through a lens in the Immersive (fisheye) or ENeRF-Outdoor (distorted
 EasyVolcap) layout (``layouts``), plus ground truth in ``<out>/gt/`` (depth, scene
-flow, object masks, trajectories, colour transforms) so that motion can be scored.
+flow, object masks, trajectories, colour transforms, and the held-out camera's frames before
+sensor noise and video coding) so that motion and flicker can be scored.
 
 Run::
 
@@ -90,7 +91,8 @@ def _write_camera(out: Path, layout: str, cfg: SynthConfig, content: SceneConten
     arguments alone (the camera's noise has its own seed), so the files do not depend on
     which process renders which camera."""
     gt = out / "gt"
-    r = render_camera(content, cam, cfg, transform, ci, gains=gains)
+    held_out = ci == 0  # cams[0] is the test camera (scene.json: test_cameras)
+    r = render_camera(content, cam, cfg, transform, ci, gains=gains, keep_clean=held_out)
     if lens is not None:
         frames = render_camera(content, cam, cfg, transform, ci, rays=lens.rays, gains=gains).frames
         layouts.write_layout_frames(out, layout, cam, lens.mask(frames),
@@ -105,6 +107,8 @@ def _write_camera(out: Path, layout: str, cfg: SynthConfig, content: SceneConten
     np.save(gt / "depth" / f"{cam.name}.npy", r.depth)
     np.save(gt / "flow3d" / f"{cam.name}.npy", r.flow3d)
     np.save(gt / "objects" / f"{cam.name}.npy", r.objects)
+    if r.clean is not None:  # the pinhole camera's frames before noise (lens layouts: the undistorted view)
+        np.save(gt / "clean" / f"{cam.name}.npy", r.clean)
     if transient_labels:
         np.save(gt / "transient" / f"{cam.name}.npy", np.isin(r.objects, transient_labels).astype(np.uint8))
     counts = {o.label: (r.objects == o.label).sum(axis=(1, 2)).tolist() for o in content.objects}
@@ -134,7 +138,7 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
     gains = exposure_gains(cfg, len(cams))
     transient_labels = [o.label for o in content.objects if o.transient()]
     gt = out / "gt"
-    for sub in ("depth", "flow3d", "objects") + (("transient",) if transient_labels else ()):
+    for sub in ("depth", "flow3d", "objects", "clean") + (("transient",) if transient_labels else ()):
         (gt / sub).mkdir(parents=True, exist_ok=True)
     tasks = [(out, layout, cfg, content, cam, ci, transforms[ci], None if gains is None else gains[ci],
               lenses[ci] if lenses else None, transient_labels) for ci, cam in enumerate(cams)]
@@ -165,6 +169,8 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = "studio", se
         files=dict(depth="depth/<cam>.npy float32 [F,H,W] camera z-depth at pixel centres",
                    flow3d="flow3d/<cam>.npy float16 [F,H,W,3] world velocity of the visible point, units/s",
                    objects="objects/<cam>.npy uint8 [F,H,W] 0 = background, k = label of object k",
+                   clean="clean/<cam>.npy uint8 [F,H,W,3] RGB of the test camera before sensor noise and video"
+                         " coding (colour shift and exposure drift applied)",
                    **(dict(transient="transient/<cam>.npy uint8 [F,H,W] 1 where an object that exists for"
                                      " part of the clip is visible") if transient_labels else {})),
     ))

@@ -2,7 +2,9 @@
 
 ``build_scene`` lays out the room, props, moving balls and camera rig of a ``SynthConfig``;
 ``render_camera`` ray-casts every frame of one camera and applies its colour shift, exposure
-drift and sensor noise (``color_transforms``, ``exposure_gains``).
+drift and sensor noise (``color_transforms``, ``exposure_gains``); on request it also keeps the
+frames as they are just before the noise (``CameraRender.clean``: the held-out camera's
+noise-free reference, ``gt/clean/``).
 """
 
 from __future__ import annotations
@@ -138,14 +140,17 @@ class CameraRender:
     depth: np.ndarray  # [F, H, W] float32 camera z-depth at pixel centres
     flow3d: np.ndarray  # [F, H, W, 3] float16 world velocity (units/s) of the visible point
     objects: np.ndarray  # [F, H, W] uint8, 0 = background, k = object k
+    clean: np.ndarray | None = None  # [F, H, W, 3] uint8 RGB before the sensor noise (``keep_clean``)
 
 
 def render_camera(content: SceneContent, cam: Camera, cfg: SynthConfig, transform: tuple[np.ndarray, np.ndarray],
                   cam_index: int, rays: Callable[[int], np.ndarray] | None = None,
-                  gains: np.ndarray | None = None) -> CameraRender:
+                  gains: np.ndarray | None = None, keep_clean: bool = False) -> CameraRender:
     """Ray-cast all frames of one camera, then apply its colour shift and noise.
 
     ``gains [F, 3]``: the camera's exposure drift per frame (``exposure_gains``), applied first.
+    ``keep_clean``: also return the frames just before the noise, rounded to uint8 as the
+    recorded ones are (``clean``; the noise draws, hence ``frames``, are the same either way).
 
     ``rays(s)`` is the camera's world ray grid ``[H*s, W*s, 3]`` (unit camera-z) through a
     lens (``layouts.Lens.rays``); default: the pinhole ``pixel_rays``.
@@ -160,7 +165,8 @@ def render_camera(content: SceneContent, cam: Camera, cfg: SynthConfig, transfor
     noise_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 2, cam_index]))
     F = cfg.n_frames
     out = CameraRender(np.empty((F, H, W, 3), np.uint8), np.empty((F, H, W), np.float32),
-                       np.empty((F, H, W, 3), np.float16), np.empty((F, H, W), np.uint8))
+                       np.empty((F, H, W, 3), np.float16), np.empty((F, H, W), np.uint8),
+                       np.empty((F, H, W, 3), np.uint8) if keep_clean else None)
     for f in range(F):
         t = f / cfg.fps
         rgb = cast_objects(content, cam, sub_dirs, s, t, sub_bg, box_from_rays=lens).rgb
@@ -168,6 +174,8 @@ def render_camera(content: SceneContent, cam: Camera, cfg: SynthConfig, transfor
         if gains is not None:
             img = img * gains[f].astype(np.float32)
         img = img @ M + transform[1]
+        if out.clean is not None:
+            out.clean[f] = np.round(np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
         if cfg.noise > 0:
             img = img + noise_rng.normal(0.0, cfg.noise, img.shape)
         out.frames[f] = np.round(np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
