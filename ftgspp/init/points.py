@@ -317,10 +317,15 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
                 gaps.append(sift_depth_gaps(scene, [(a, b, pix, X) for a, b, pix, X, _ in sift], flows))
         trusted, seen = dense_trusted(cfg, coverages, gaps)
         if not trusted:
-            log.info("init: dense points not trusted (coverage of the views %.2f, needs %.2f; median depth gap to "
-                     "SIFT %.3f, at most %.2f; init.dense_check=%s): SIFT matches instead", seen["coverage"],
-                     COVERAGE_MIN, seen.get("disagreement", float("nan")), AGREEMENT_MAX, check)
-            tri = [triangulate_keyframe(scene, f, cfg, near, far) for f in kfs]
+            sift_tri = [triangulate_keyframe(scene, f, cfg, near, far) for f in kfs]
+            why = (f"coverage of the views {seen['coverage']:.2f}, needs {COVERAGE_MIN:.2f}; median depth gap to SIFT"
+                   f" {seen.get('disagreement', float('nan')):.3f}, at most {AGREEMENT_MAX:.2f}; init.dense_check={check}")
+            if sum(len(p) for p, _ in sift_tri):
+                log.info("init: dense points not trusted (%s): SIFT matches instead", why)
+                tri = sift_tri
+            else:  # SIFT + fill needs SIFT points: with none, the dense points are the only start there is
+                log.info("init: dense points not trusted (%s), but SIFT triangulates no point: dense points kept", why)
+                trusted = True
     else:
         tri = [triangulate_keyframe(scene, f, cfg, near, far) for f in kfs]
     points = [p for p, _ in tri]

@@ -9,6 +9,7 @@ and the depth score are checked on points built from the true depth."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -155,3 +156,17 @@ def test_an_unknown_check_is_one_error_line(small) -> None:
     with pytest.raises(InputError, match="init.dense_check") as err:
         initialize(small, InitConfig(matcher="sift", dense_check="coverage"), BUDGET, seed=0)
     assert "\n" not in str(err.value)
+
+
+def test_where_sift_triangulates_nothing_the_dense_points_are_kept(tmp_path: Path) -> None:
+    # the studio seen by 3 cameras at 64x48 (the stability study's 3-camera cell at smoke size): the
+    # dense points cover little of the views, but SIFT + fill has no SIFT point to start from
+    root = synth(tmp_path / "s", preset="studio", seed=0, width=64, height=48, n_frames=6, n_cameras=3)
+    scene = load_scene(DataConfig(path=str(root), downsample=1))
+    with pytest.raises(InputError, match="no points could be triangulated"):
+        initialize(scene, InitConfig(matcher="sift"), 300, seed=0)
+    ruled = initialize(scene, InitConfig(matcher="dense"), 300, seed=0)
+    assert ruled.stats["init_dense_coverage"] < COVERAGE_MIN and ruled.stats["init_dense_fallback"] == 0.0
+    unchecked = initialize(scene, InitConfig(matcher="dense", dense_check="off"), 300, seed=0)
+    for f in POINT_FIELDS:
+        np.testing.assert_array_equal(getattr(ruled, f), getattr(unchecked, f))
