@@ -79,7 +79,8 @@ def xt_grid_figure(rows: dict[str, dict[int, np.ndarray | None]], truth: dict[st
             show(axes[r, c], by_seed[seed])
             if r == 0:
                 axes[r, c].set_title(f"seed {seed}", fontsize=9)
-        axes[r, 0].set_ylabel(f"{variant}\nframe ↓", fontsize=9)
+        # the variant's name across, beside its row (long names do not fit along a panel's height)
+        axes[r, 0].set_ylabel(variant, fontsize=8, rotation=0, ha="right", va="center")
         for ax in axes[r, len(seeds):]:
             ax.set_visible(False)
     if truth is not None:
@@ -87,7 +88,7 @@ def xt_grid_figure(rows: dict[str, dict[int, np.ndarray | None]], truth: dict[st
         ref = truth.get("gt_clean", truth["gt"])
         axes[r, 0].imshow(ref, extent=extent, aspect="auto", interpolation="nearest")
         axes[r, 0].set_title("noise-free ground truth" if "gt_clean" in truth else "ground truth", fontsize=9)
-        axes[r, 0].set_ylabel("ground truth\nframe ↓", fontsize=9)
+        axes[r, 0].set_ylabel("ground truth", fontsize=8, rotation=0, ha="right", va="center")
         if noise is not None:
             show(axes[r, 1], noise)
             axes[r, 1].set_title("|recorded − noise-free|", fontsize=9)
@@ -101,7 +102,7 @@ def xt_grid_figure(rows: dict[str, dict[int, np.ndarray | None]], truth: dict[st
     if image is not None:
         fig.colorbar(image, ax=axes, shrink=0.6, extend="max",
                      label="|render − noise-free ground truth|, mean over RGB")
-    fig.suptitle(title)
+    fig.suptitle(f"{title} (time runs down each panel)")
     return plots.save_figure(fig, path)
 
 
