@@ -2,7 +2,7 @@
 
     study list
     study run NAME [--profile quick|paper|smoke] [--seeds N] [--scenes A,B] [--variants A,B]
-                   [--jobs N] [--launcher basic|joblib|local|slurm] [--lease SECONDS]
+                   [--jobs N] [--launcher basic|joblib|local|slurm] [--lease SECONDS] [--no-wait]
                    [key=value overrides ...]
     study status NAME [same selection options]
     study report NAME [same selection options] [--out DIR]   (default outputs/reports/NAME)
@@ -16,14 +16,19 @@ otherwise); ``status`` and ``report`` without selection options use the latest `
 invocation of the study. Several ``study run`` invocations (nodes, array jobs, a second
 one by hand) may share one tracking server: each run is claimed with a lease first
 (``harness.run.lease``), and ``status`` lists the runs in progress with their host and age.
-Bad input (unknown study, variant or scene, bad override, unreachable tracking store) prints
-one line and exits 2 before anything is written.
+Bad input (unknown study, variant or scene, bad override, a malformed or unreachable tracking
+store) prints one line and exits 2 before anything is written. ``study run`` exits 0 only when
+every planned run is finished (or failed with a reason), 3 when another live invocation holds
+runs (``--no-wait``; else it waits for them), 4 when runs are left without a final record, and
+128 + N when signal N (Ctrl-C, SIGTERM, SIGHUP) stopped it, after one line naming the command that
+resumes (``run.completion``, ``run.stopping``).
 """
 
 from __future__ import annotations
 
 import argparse
 import atexit
+import contextlib
 import gc
 import json
 import os
@@ -32,10 +37,11 @@ from pathlib import Path
 
 from ftgspp.errors import InputError, exit_on_input_error
 from harness.report import COMMITTED_REPORTS, USER_REPORTS
+from harness.run.completion import EXIT_HELD, EXIT_STATUSES
 from harness.run.launchers import LAUNCHERS
 from harness.spec.metrics import budget_metrics
 from harness.spec.runs import Selection
-from harness.spec.study_schema import JOBS_SPEEDUP, PROFILES
+from harness.spec.study_schema import JOBS_SPEEDUP, PROFILES, plural
 
 
 class _Parser(argparse.ArgumentParser):
@@ -67,7 +73,13 @@ def build_parser() -> argparse.ArgumentParser:
                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     sub.add_parser("list", help="the studies, their questions and run counts")
-    run = sub.add_parser("run", help="run the missing or failed runs of a study")
+    run = sub.add_parser("run", help="run the missing or failed runs of a study",
+                         description="Run the missing or failed runs of a study; finished runs are skipped, so running"
+                                     " the same command again resumes. A run another live invocation holds is waited"
+                                     " for (--no-wait: not). Ctrl-C, SIGTERM and SIGHUP stop it: the runs in progress"
+                                     " are recorded KILLED with the signal and the last line is the command that"
+                                     " resumes.",
+                         epilog=EXIT_STATUSES, formatter_class=argparse.RawDescriptionHelpFormatter)
     _selection_args(run)
     run.add_argument("--jobs", type=int, default=None,
                      help="parallel runs (Hydra joblib launcher); default: the profile's `jobs` (2 in the quick"
@@ -81,7 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
                           " harness/tracking/provenance.py); make reports uses it")
     run.add_argument("--lease", type=float, default=None, metavar="SECONDS",
                      help="a claimed run is taken over after this long without a heartbeat"
-                          " (default $FTGSPP_LEASE_S or 300)")
+                          " (default $FTGSPP_LEASE_S or 300); at once when its holder process on this host is gone")
+    run.add_argument("--no-wait", action="store_true",
+                     help="do not wait for runs that another live invocation holds: run the rest, name each held run's"
+                          f" holder (host, pid) and lease expiry, and exit with status {EXIT_HELD}")
     status = sub.add_parser("status", help="done / failed / missing runs per variant, scene and seed")
     _selection_args(status)
     report = sub.add_parser("report", help="tables and plots into OUT/NAME/ (NAME --all: every study)")
@@ -146,6 +161,32 @@ def default_jobs(study: str, profile: str, launcher: str = "basic") -> int:
 
         return local_slots()
     return max(1, min(load_study(study).profile(profile).jobs, os.cpu_count() or 1))
+
+
+def cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
+    """``study run``: its exit status is ``run.completion``'s; a stop (Ctrl-C, SIGTERM, SIGHUP)
+    ends with one line - what was recorded and the command that resumes - and 128 + the signal."""
+    import shlex
+
+    from harness.run import stopping
+    from harness.run.runner import run_study
+
+    try:
+        with stopping.on_signals():  # from here on, not only once the runner has started
+            sel = _selection(args, required=True)
+            jobs = default_jobs(args.name, sel.profile, args.launcher) if args.jobs is None else args.jobs
+            outcome = run_study(args.name, sel, jobs=jobs, launcher=args.launcher, lease_s=args.lease,
+                                rerun_stale=args.rerun_stale, wait=not args.no_wait)
+    except KeyboardInterrupt as exc:
+        stop = stopping.as_stopped(exc)
+        with contextlib.suppress(OSError):  # after SIGHUP the terminal may be gone; the store has the record
+            print(f"stopped by {stop.name}: {plural(stop.finished, 'run')} finished, {stop.killed} recorded KILLED"
+                  f" (stop_signal={stop.name}); resume with: {shlex.join(['study', *argv])}", flush=True)
+        return stop.exit_status
+    # at exit, after the workers have stopped: the interpreter's last collection would walk
+    # every object of this process (about 0.3 s here; run.heap does the same for workers)
+    atexit.register(gc.freeze)
+    return getattr(outcome, "exit_status", 0)  # (test_study_cli stubs run_study with one returning None)
 
 
 def cmd_list() -> int:
@@ -275,17 +316,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "list":
             return cmd_list()
         if args.command == "run":
-            from harness.run.runner import run_study
-
-            sel = _selection(args, required=True)
-            jobs = default_jobs(args.name, sel.profile, args.launcher) if args.jobs is None else args.jobs
-            run_study(args.name, sel, jobs=jobs,
-                      launcher=args.launcher,
-                      lease_s=args.lease, rerun_stale=args.rerun_stale)
-            # at exit, after the workers have stopped: the interpreter's last collection would walk
-            # every object of this process (about 0.3 s here; run.heap does the same for workers)
-            atexit.register(gc.freeze)
-            return 0
+            return cmd_run(args, sys.argv[1:] if argv is None else argv)
         if args.command == "status":
             return cmd_status(args)
         if args.command == "report":

@@ -22,6 +22,10 @@ Written files:
 - ``ladders.csv``, ``ladders.png`` and a "Stability ladders" section in ``table.md`` and
   ``index.md`` when the profile's cells are rungs of difficulty ladders (``report.ladder_figures``).
 
+In MLflow, on the parent run of the reported runs: a tag ``verdict.<claim>`` per claim, the
+verdicts and the per-variant means at the registry's decimals as artifacts and as the run's
+description (``report.mlflow_answer``).
+
 Each part comes from ``report.sections``; this module puts them together in a fixed order.
 When the tracking store has none of the reported runs, they come from the committed report
 (``report.committed``), and the page's last line says so.
@@ -43,6 +47,7 @@ from harness.report import (
     committed,
     currency,
     families,
+    mlflow_answer,
     sections,
     speed_accuracy_text,
     tables,
@@ -251,6 +256,7 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
     c = aggregate.counts(data.df)
     echo(f"{name}: report of {c['n_runs']} runs ({c['n_finished']} finished, {c['n_failed']} failed,"
          f" {c['n_missing'] + c['n_running']} missing) written to {out / 'index.md'}")
+    mlflow_answer.log_answer(data, out, echo)  # the verdicts and means on the reported parent run
     return out / "index.md"
 
 

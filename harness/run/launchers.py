@@ -47,6 +47,12 @@ from harness.spec.schema import CONF_DIR, register
 from harness.tracking.store import sqlite_path
 
 TaskFunction = Callable[[DictConfig], Any]
+_STOP = threading.Event()  # set while the study stops (run.stopping): ``_at_most`` starts no further job
+
+
+def stop_launching() -> None:
+    """Start no further job of the ``launch`` in progress (the study is being stopped)."""
+    _STOP.set()
 
 LAUNCHERS = ("basic", "joblib", "local", "slurm")  # also the config names in conf/hydra/launcher
 SERVER_HINT = "start a tracking server (make server; docs/cluster.md) and pass tracking=server or tracking.uri=..."
@@ -150,6 +156,7 @@ def launch(
     from hydra.types import HydraContext, RunMode
 
     register()
+    _STOP.clear()
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3", job_name=job_name):
         loader = GlobalHydra.instance().config_loader()
         master = loader.load_configuration(
@@ -170,7 +177,8 @@ def _at_most(jobs: int, launch_one: Callable[..., Sequence[Any]], job_overrides:
     """Launch every job by itself (``launch_one([overrides], initial_job_idx=i)``, a job array
     of one, which returns when the job has ended), from ``jobs`` threads: at most ``jobs`` run at
     once, the next starting as one ends. Returns in order; if a launch raised (a job died without
-    returning), the first error is raised once every job has ended, as the array's launch would."""
+    returning), the first error is raised once every job has ended, as the array's launch would.
+    After ``stop_launching`` no further job starts."""
     returns: list[Any] = [None] * len(job_overrides)
     errors: list[BaseException] = []
     queue = iter(range(len(job_overrides)))
@@ -179,7 +187,7 @@ def _at_most(jobs: int, launch_one: Callable[..., Sequence[Any]], job_overrides:
     def work() -> None:
         while True:
             with lock:
-                i = next(queue, None)
+                i = None if _STOP.is_set() else next(queue, None)
             if i is None:
                 return
             try:
@@ -187,7 +195,8 @@ def _at_most(jobs: int, launch_one: Callable[..., Sequence[Any]], job_overrides:
             except Exception as exc:
                 errors.append(exc)
 
-    # daemon threads: Ctrl-C ends this process at once (a terminal's Ctrl-C reaches the jobs too)
+    # daemon threads: a stop (Ctrl-C, SIGTERM, SIGHUP) ends this process at once; stop_launching keeps
+    # them from starting another job meanwhile
     threads = [threading.Thread(target=work, name=f"local-slot-{k}", daemon=True) for k in range(jobs)]
     for t in threads:
         t.start()

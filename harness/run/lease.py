@@ -5,7 +5,10 @@ A child run is its own claim. ``acquire`` creates it RUNNING with the lease tags
 the claim lives without a heartbeat); the worker's ``Heartbeat`` thread refreshes
 ``lease.heartbeat`` every ``lease.seconds / 5``. A RUNNING run is *live* while its last
 heartbeat is younger than its own ``lease.seconds``, else *stale* (its worker was killed,
-its node was lost). Another invocation:
+its node was lost). A claim whose holder is a process of this host that no longer exists
+(``holder_gone``: same host name, no such pid) is stale at once, whatever its heartbeat says: a
+killed invocation's runs are taken over by the next one without waiting out the lease. Another
+invocation:
 
 - skips a (variant, scene, seed, config_hash) that has a FINISHED run or a live claim;
 - takes over a stale claim: it marks it FAILED (``failure=interrupted``, the lease's age in
@@ -65,20 +68,66 @@ def heartbeat_age(rec: RunRecord, now: float | None = None) -> float:
     return max(0.0, now - beat)
 
 
-def is_live(rec: RunRecord, default_lease_s: float = DEFAULT_LEASE_S, now: float | None = None) -> bool:
-    """A RUNNING run whose last heartbeat is younger than its own lease."""
-    if rec.status != "RUNNING":
+def lease_length(rec: RunRecord, default_lease_s: float = DEFAULT_LEASE_S) -> float:
+    """The run's own lease in seconds (a run from before leases: ``default_lease_s``)."""
+    try:
+        return float(rec.tags[SECONDS])
+    except (KeyError, ValueError):
+        return default_lease_s
+
+
+def holder(rec: RunRecord) -> tuple[str, int | None]:
+    """(host, pid) of the claim's holder; pid None when the owner tag does not say."""
+    host, _, pid = rec.tags.get(OWNER, "").rpartition(":")
+    return (host, int(pid)) if host and pid.isdigit() else (rec.tags.get(OWNER, ""), None)
+
+
+def holder_gone(rec: RunRecord) -> bool:
+    """Whether the claim's holder was a process of this host (same host name) that no longer
+    runs. A holder on another host, or one whose owner tag names no pid, is never judged gone."""
+    import psutil
+
+    host, pid = holder(rec)
+    if pid is None or host != socket.gethostname():
         return False
     try:
-        lease_s = float(rec.tags[SECONDS])
-    except (KeyError, ValueError):  # a run from before leases: judged by the caller's lease
-        lease_s = default_lease_s
-    return heartbeat_age(rec, now) <= lease_s
+        return psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return True
+    except psutil.Error:  # e.g. access denied: it exists
+        return False
+
+
+def is_live(rec: RunRecord, default_lease_s: float = DEFAULT_LEASE_S, now: float | None = None) -> bool:
+    """A RUNNING run whose last heartbeat is younger than its own lease and whose holder has not
+    gone (``holder_gone``)."""
+    if rec.status != "RUNNING":
+        return False
+    return heartbeat_age(rec, now) <= lease_length(rec, default_lease_s) and not holder_gone(rec)
+
+
+def expires_in(rec: RunRecord, default_lease_s: float = DEFAULT_LEASE_S, now: float | None = None) -> float:
+    """Seconds until the claim expires unless its holder beats again (negative: expired)."""
+    return lease_length(rec, default_lease_s) - heartbeat_age(rec, now)
 
 
 def describe(rec: RunRecord, now: float | None = None) -> str:
-    """``host:pid, heartbeat 12s ago`` for status lines."""
-    return f"{rec.tags.get(OWNER, 'unknown owner')}, heartbeat {heartbeat_age(rec, now):.0f}s ago"
+    """``host:pid, heartbeat 12s ago`` for status lines (``holder gone`` when it is)."""
+    gone = ", holder gone" if rec.status == "RUNNING" and holder_gone(rec) else ""
+    return f"{rec.tags.get(OWNER, 'unknown owner')}, heartbeat {heartbeat_age(rec, now):.0f}s ago{gone}"
+
+
+def held_line(rec: RunRecord, default_lease_s: float = DEFAULT_LEASE_S, now: float | None = None) -> str:
+    """One line naming a live claim's run, holder (host, pid) and when its lease expires."""
+    now = time.time() if now is None else now
+    host, pid = holder(rec)
+    left = max(0.0, expires_in(rec, default_lease_s, now))
+    at = time.strftime("%H:%M:%S", time.localtime(now + left))
+    t = rec.tags
+    label = f"{t['variant']}/{t['scene']}/seed{t['seed']}" if {"variant", "scene", "seed"} <= t.keys() else rec.run_id
+    return (f"held: {label} by host {host or 'unknown'}, pid {pid or 'unknown'}"
+            f" (heartbeat {heartbeat_age(rec, now):.0f}s ago); its lease expires at {at} (in {left:.0f}s)"
+            " unless the holder beats again")
 
 
 @dataclass(frozen=True)
@@ -137,7 +186,7 @@ def acquire(store: Store, experiment_id: str, run_name: str, tags: dict[str, str
         live = [r for r in runs if is_live(r, lease_s)]
         if live:
             return Claim(None, f"claimed by {describe(live[0])}")
-        took_over += _take_over(store, [r for r in runs if r.status == "RUNNING"], me, lease_s)
+        took_over += _take_over(store, [r for r in runs if r.status == "RUNNING"], me, lease_s)  # stale or gone
         now = time.time()
         claim_tags = {**tags, OWNER: me, HEARTBEAT: f"{now:.3f}", SECONDS: f"{lease_s:g}"}
         if took_over:

@@ -11,9 +11,16 @@
 3. ``_prepare``: generate missing synthetic scenes, compile the cpu kernels and wait for the
    warm workers (``run.prewarm``), all before ``_open_parent`` opens one MLflow parent run;
    ``_launch_runs`` launches the rest through a Hydra launcher (``run.launchers``: basic,
-   joblib for ``jobs > 1``, or submitit's local and SLURM executors) and ``_finish`` ends the
-   parent run with the counts;
-4. each job runs a ``run.task.RunTask``: it claims, trains and records its child run.
+   joblib for ``jobs > 1``, or submitit's local and SLURM executors);
+4. each job runs a ``run.task.RunTask``: it claims, trains and records its child run;
+5. with ``wait`` (``study run`` without ``--no-wait``): wait for the runs other live invocations
+   hold, and run those they leave without a result; ``_finish`` settles the plan against the
+   store (``run.completion``: the exit status) and ends the parent run with the counts.
+
+Ctrl-C, SIGTERM and SIGHUP stop it at any step (``run.stopping``): no further job starts, the
+workers record their runs KILLED with the signal, what they leave RUNNING is ended KILLED here,
+the parent run ends KILLED, and ``Stopped`` goes on to the caller (``study run`` prints the
+command that resumes).
 """
 
 from __future__ import annotations
@@ -24,14 +31,16 @@ import os
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 from ftgspp.bench import warmup
 from ftgspp.errors import InputError
-from harness.run import lease, progress
-from harness.run.launchers import check_launcher, check_launcher_args, launch, split_launcher_args
+from harness.run import completion, lease, progress, stopping
+from harness.run.completion import StudyOutcome
+from harness.run.launchers import (check_launcher, check_launcher_args, effective_launcher, launch, split_launcher_args,
+                                   stop_launching)
 from harness.run.prewarm import Prewarm, prewarm
 from harness.run.scenes import Generator, ensure_scene, scene_lock
 from harness.run.task import JobInfo, RunTask, TrainFn
@@ -45,21 +54,6 @@ from harness.tracking.records import RunRecord, load_runs, tracking_target
 from harness.tracking.store import Store, check_store
 
 OUT_ROOT = Path("outputs/studies")
-
-
-@dataclass
-class StudyOutcome:
-    """What one ``study run`` did."""
-
-    total: int
-    skipped: int
-    launched: int
-    finished: int = 0
-    failed: int = 0
-    diverged: int = 0
-    claimed_elsewhere: int = 0  # launched, but another invocation had claimed or finished it
-    parent_run_id: str = ""
-    results: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -98,47 +92,6 @@ def warm_kernels(echo: Callable[[str], None]) -> None:
     echo(f"  kernels compiled in {time.time() - t0:.0f} s")
 
 
-def pending(existing: list[RunRecord], planned: list[PlannedRun], lease_s: float = lease.DEFAULT_LEASE_S,
-            trainer: str = "") -> tuple[list[PlannedRun], list[RunRecord]]:
-    """(planned runs to launch, live claims of other invocations that are left to them),
-    given the study's ``existing`` child runs.
-
-    A run is launched unless it FINISHED or a live worker holds it; stale RUNNING runs are
-    taken over by the job that claims the run (``run.lease.acquire``), not here. A finished run
-    scored without LPIPS is run again once the weights are there.
-    """
-    done = {r.key for r in existing if lease.counts_as_done(r, trainer)}
-    live = {r.key: r for r in existing if lease.is_live(r, lease_s) and r.key not in done}
-    todo = [p for p in planned if p.key not in done and p.key not in live]
-    keys = {p.key for p in planned}
-    return todo, [r for k, r in live.items() if k in keys]
-
-
-def foreign_domain_notes(existing: list[RunRecord], planned: list[PlannedRun]) -> list[str]:
-    """One line per finished run in ``existing`` that counts as done here although its bits come
-    from another determinism domain than this machine would give it (or from no recorded one)."""
-    from ftgspp.runtime.determinism import expected_domain_id
-
-    by_key = {p.key: p for p in planned}
-    expected: dict[tuple[str, int, str], str | None] = {}
-    notes = []
-    for rec in existing:
-        p = by_key.get(rec.key)
-        if rec.status != "FINISHED" or p is None:
-            continue
-        # like with like: the thread count the run recorded (a joblib worker may get fewer
-        # threads than planned) and the run's own kernel dispatch
-        threads = rec.tags.get("determinism.torch_threads") or p.params.get("threads", "0")
-        settings = (p.params.get("determinism", "default"), int(threads), p.params.get("dispatch", "native"))
-        if settings not in expected:
-            expected[settings] = expected_domain_id(*settings)
-        here, got = expected[settings], rec.tags.get("determinism.id", "")
-        if here is not None and got != here:
-            notes.append(f"[resume] {p.spec.label}: finished in determinism domain {got or 'unrecorded'}, this machine"
-                         f" gives {here}; counted as done (its numbers need not match a run here bit for bit)")
-    return notes
-
-
 def run_study(
     name: str,
     sel: Selection,
@@ -153,35 +106,81 @@ def run_study(
     echo: Callable[[str], None] = print,
     rerun_stale: bool = False,
     study: StudySpec | None = None,
+    wait: bool = False,
 ) -> StudyOutcome:
     """Run the missing or failed runs of study ``name``; see the module docstring. ``study``:
-    a spec built in code (``study budget``, cli.budget) instead of ``studies/<name>.yaml``."""
-    inv = _validate(name, sel, jobs, launcher, lease_s, studies_dir, out_root, study)
-    # the workers import and load their kernels while this process opens the store and makes scenes
-    warm = prewarm(launcher, jobs, inv.launcher_args) if train_fn is None else None
-    store, exp_id = _open_experiment(inv)
-    todo, elsewhere, trainer = _find_pending(inv, store, rerun_stale, echo)
-    outcome = StudyOutcome(total=len(inv.planned), skipped=len(inv.planned) - len(todo), launched=len(todo))
-    _announce(inv, todo, elsewhere, echo)
-    if not todo:
-        if warm is not None:
-            warm.wait()  # nothing to run: the warm-up ends before the process does (seconds)
-        echo(f"browse: {ui_link(inv.uri, exp_id)}")
+    a spec built in code (``study budget``, cli.budget) instead of ``studies/<name>.yaml``.
+    ``wait``: wait for the runs other live invocations hold and run those they leave without a
+    result; else they are left to them (``outcome.exit_status`` 3). Ctrl-C, SIGTERM and SIGHUP
+    raise ``run.stopping.Stopped`` once every run in progress is recorded KILLED."""
+    stopping.reset()
+    with stopping.on_signals():
+        inv = _validate(name, sel, jobs, launcher, lease_s, studies_dir, out_root, study)
+        # the workers import and load their kernels while this process opens the store and makes scenes
+        warm = prewarm(launcher, jobs, inv.launcher_args) if train_fn is None else None
+        store, exp_id = _open_experiment(inv)
+        todo, elsewhere, trainer = _find_pending(inv, store, rerun_stale, echo)
+        outcome = StudyOutcome(total=len(inv.planned), skipped=len(inv.planned) - len(todo), launched=len(todo))
+        _announce(inv, todo, elsewhere, echo)
+        launches = _Launches(inv, store, exp_id, outcome, train_fn, trainer, generate, warm, echo)
+        try:
+            if todo:
+                launches(todo)
+            elif warm is not None:
+                warm.wait()  # nothing to run: the warm-up ends before the process does (seconds)
+            while wait and (held := completion.settle(load_runs(store, inv.experiment, name), inv.planned,
+                                                      inv.lease_s, trainer).held):
+                completion.wait_for_holders(store, inv.experiment, name, held, inv.lease_s, echo)
+                again, _, _ = _find_pending(inv, store, rerun_stale, lambda line: None)
+                if again := [p for p in again if p.key in {r.key for r in held}]:  # their holders left no result
+                    echo(f"{len(again)} of them ended without a result: running {len(again)} here")
+                    outcome.launched += len(again)
+                    launches(again)
+            _finish(inv, store, exp_id, outcome, trainer, echo)
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: record what was running, then stop
+            stop = stopping.as_stopped(exc)
+            stopping.reap(stopping.grace_seconds() + 5)  # what is left of the workers
+            if outcome.parent_run_id:
+                for line in completion.end_stopped(store, inv.experiment, name, outcome.parent_run_id, stop):
+                    echo(line)
+            raise stop from None
         return outcome
-    local_kernels = train_fn is None and inv.launcher != "slurm"  # workers here train with the cpu kernels
-    text, runs_s = progress.expected(inv.study.profile(inv.sel.profile), len(todo), jobs,
-                                     local_kernels and not warmup.kernels_cached())
-    echo(f"expected: {text}")
-    _prepare(inv, todo, generate, local_kernels, warm, echo)  # scenes, kernels, warm workers
-    parent_id, stamp = _open_parent(store, exp_id, inv, todo)
-    outcome.parent_run_id = parent_id
-    # absolute: submitit's folder lives under it and jobs on other nodes must find it
-    sweep_dir = (inv.out_root / name / f"{stamp}-{parent_id[:8]}").resolve()
-    echo(f"outputs: {os.path.relpath(sweep_dir)}/VARIANT/SCENE/SEED/, each run's log there: study_{name}.log")
-    task = _task(inv, exp_id, parent_id, todo, sweep_dir, runs_s, train_fn, trainer)
-    _launch_runs(inv, store, task, todo, sweep_dir, outcome)
-    _finish(inv, store, exp_id, outcome, echo)
-    return outcome
+
+
+@dataclass
+class _Launches:
+    """The launches of one invocation, under its one parent run (opened by the first)."""
+
+    inv: Invocation
+    store: Store
+    exp_id: str
+    outcome: StudyOutcome
+    train_fn: TrainFn | None
+    trainer: str
+    generate: Generator | None
+    warm: Prewarm | None
+    echo: Callable[[str], None]
+    sweep_dir: Path | None = None
+    rounds: int = 0
+
+    def __call__(self, todo: list[PlannedRun]) -> None:
+        inv, echo = self.inv, self.echo
+        local_kernels = self.train_fn is None and inv.launcher != "slurm"  # workers here train with the cpu kernels
+        text, runs_s = progress.expected(inv.study.profile(inv.sel.profile), len(todo), inv.jobs,
+                                         local_kernels and not warmup.kernels_cached())
+        echo(f"expected: {text}")
+        _prepare(inv, todo, self.generate, local_kernels, self.warm, echo)  # scenes, kernels, warm workers
+        if self.sweep_dir is None:
+            parent_id, stamp = _open_parent(self.store, self.exp_id, inv, todo, self.outcome)
+            # absolute: submitit's folder lives under it and jobs on other nodes must find it
+            self.sweep_dir = (inv.out_root / inv.name / f"{stamp}-{parent_id[:8]}").resolve()
+            echo(f"outputs: {os.path.relpath(self.sweep_dir)}/VARIANT/SCENE/SEED/, each run's log there:"
+                 f" study_{inv.name}.log")
+        self.rounds += 1
+        progress_file = "progress.jsonl" if self.rounds == 1 else f"progress-{self.rounds}.jsonl"
+        task = _task(inv, self.exp_id, self.outcome.parent_run_id, todo, self.sweep_dir / progress_file, runs_s,
+                     self.train_fn, self.trainer)
+        _launch_runs(inv, self.store, task, todo, self.sweep_dir, self.outcome)
 
 
 def _validate(name: str, sel: Selection, jobs: int, launcher: str, lease_s: float | None, studies_dir: Path | None,
@@ -226,8 +225,8 @@ def _find_pending(inv: Invocation, store: Store, rerun_stale: bool,
     finished runs come from another determinism domain."""
     existing = load_runs(store, inv.experiment, inv.name)
     trainer = trainer_fingerprint() if rerun_stale else ""  # --rerun-stale: runs of older code are not done
-    todo, elsewhere = pending(existing, inv.planned, inv.lease_s, trainer)
-    for line in foreign_domain_notes(existing, inv.planned):
+    todo, elsewhere = completion.pending(existing, inv.planned, inv.lease_s, trainer)
+    for line in completion.foreign_domain_notes(existing, inv.planned):
         echo(line)
     return todo, elsewhere, trainer
 
@@ -259,8 +258,10 @@ def _prepare(inv: Invocation, todo: list[PlannedRun], generate: Generator | None
             echo(f"  worker warm-up failed ({type(warm.error).__name__}: {warm.error}); the launcher starts its own")
 
 
-def _open_parent(store: Store, exp_id: str, inv: Invocation, todo: list[PlannedRun]) -> tuple[str, str]:
-    """The invocation's parent run (tags, params, the study file); returns (run id, stamp)."""
+def _open_parent(store: Store, exp_id: str, inv: Invocation, todo: list[PlannedRun],
+                 outcome: StudyOutcome) -> tuple[str, str]:
+    """The invocation's parent run (tags, params, the study file), its id in ``outcome`` as soon
+    as it exists (a stop ends it KILLED from then on); returns (run id, stamp)."""
     study, sel, planned = inv.study, inv.sel, inv.planned
     stamp = time.strftime("%Y%m%d-%H%M%S")
     tags = {
@@ -276,7 +277,7 @@ def _open_parent(store: Store, exp_id: str, inv: Invocation, todo: list[PlannedR
         "n_runs": str(len(planned)),
         "n_launched": str(len(todo)),
     }
-    parent_id = store.create_run(exp_id, f"{study.name}-{sel.profile}-{stamp}", tags)
+    parent_id = outcome.parent_run_id = store.create_run(exp_id, f"{study.name}-{sel.profile}-{stamp}", tags)
     n_seeds = len({p.spec.seed for p in planned})
     store.log_batch(parent_id, params={"profile": sel.profile, "jobs": inv.jobs, "launcher": inv.launcher,
                                        "seeds": n_seeds, "base_seed": study.base_seed})
@@ -289,7 +290,7 @@ def _open_parent(store: Store, exp_id: str, inv: Invocation, todo: list[PlannedR
     return parent_id, stamp
 
 
-def _task(inv: Invocation, exp_id: str, parent_id: str, todo: list[PlannedRun], sweep_dir: Path, runs_s: float,
+def _task(inv: Invocation, exp_id: str, parent_id: str, todo: list[PlannedRun], progress_path: Path, runs_s: float,
           train_fn: TrainFn | None, trainer: str) -> RunTask:
     """What each job runs: claim, train and record its child run of ``parent_id``."""
     return RunTask(
@@ -298,7 +299,7 @@ def _task(inv: Invocation, exp_id: str, parent_id: str, todo: list[PlannedRun], 
         parent_run_id=parent_id,
         jobs=[JobInfo(p.spec.label, p.tags, p.config_hash, p.spec.scene.synth, p.params.get("threads", ""))
               for p in todo],
-        progress_path=str(sweep_dir / "progress.jsonl"),
+        progress_path=str(progress_path),
         started_at=time.time(),
         expected_total_s=runs_s,
         train_fn=train_fn,
@@ -311,71 +312,53 @@ def _task(inv: Invocation, exp_id: str, parent_id: str, todo: list[PlannedRun], 
 def _launch_runs(inv: Invocation, store: Store, task: RunTask, todo: list[PlannedRun], sweep_dir: Path,
                  outcome: StudyOutcome) -> None:
     """Launch ``todo`` and count what came back into ``outcome``. A launcher that raises ends
-    the parent run FAILED (KILLED on an interrupt) and the error goes on, except under submitit
-    (local, slurm): a job that died fails the whole array, but every run recorded itself."""
+    the parent run FAILED and the error goes on, except under submitit (local, slurm): a job that
+    died fails the whole array, but every run recorded itself. A stop (``KeyboardInterrupt``) goes
+    on to ``run_study``; while it is being handled no further job starts and the workers of this
+    host get the time to record their runs (``_drain``)."""
     parent_id = task.parent_run_id
     # progress bars of parallel workers would interleave (progress is not part of the hash)
     quiet = ["progress=false"] if inv.jobs > 1 or inv.launcher in ("local", "slurm") else []
     job_overrides = [[*p.spec.overrides, *quiet, f"hydra.sweep.subdir={p.spec.label}"] for p in todo]
     try:  # through the workers warmed above (run.prewarm), which the launcher reuses
-        returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=inv.jobs, job_name=f"study_{inv.name}",
-                         launcher=inv.launcher, launcher_args=inv.launcher_args)
-        _tally(outcome, todo, returns)
+        with stopping.while_stopping(lambda: _drain(inv, store, parent_id)):
+            returns = launch(job_overrides, task, sweep_dir=sweep_dir, jobs=inv.jobs, job_name=f"study_{inv.name}",
+                             launcher=inv.launcher, launcher_args=inv.launcher_args)
+        completion.tally(outcome, todo, returns)
     except Exception as exc:  # e.g. submitit's UncompletedJobError: a job died without returning
         if inv.launcher not in ("local", "slurm"):
             store.terminate(parent_id, "FAILED", {"error": f"{type(exc).__name__}: {exc}"[:1000]})
             raise
-        _tally_from_store(outcome, store, inv.experiment, inv.name, parent_id, exc)
-    except BaseException as exc:
-        status = "KILLED" if isinstance(exc, KeyboardInterrupt) else "FAILED"
-        store.terminate(parent_id, status, {"error": f"{type(exc).__name__}: {exc}"[:1000]})
+        completion.tally_from_store(outcome, store, inv.experiment, inv.name, parent_id, exc)
+    except SystemExit as exc:
+        store.terminate(parent_id, "FAILED", {"error": f"{type(exc).__name__}: {exc}"[:1000]})
         raise
 
 
-def _tally(outcome: StudyOutcome, todo: list[PlannedRun], returns: list[Any]) -> None:
-    for run, ret in zip(todo, returns):
-        try:
-            res = ret.return_value
-        except Exception as exc:  # the task itself failed (e.g. a tracking store error)
-            res = {"label": run.spec.label, "status": "FAILED", "failure": "harness", "error": str(exc)}
-        outcome.results.append(res)
-        if res["status"] == "FINISHED":
-            outcome.finished += 1
-        elif res["status"] == "SKIPPED":
-            outcome.claimed_elsewhere += 1
-        else:
-            outcome.failed += 1
-            outcome.diverged += res.get("failure") == "diverged"
+def _drain(inv: Invocation, store: Store, parent_id: str) -> None:
+    """In the stop signal's handler, before the launcher sees the stop (joblib would kill its
+    workers at once): start no further job, and give the workers of this host, told to stop
+    (``stopping.forward``), the grace period to record their runs KILLED."""
+    stop_launching()
+    if effective_launcher(inv.launcher, inv.jobs) != "basic":  # basic: the run is in this process
+        completion.workers_recorded(store, inv.experiment, inv.name, parent_id, stopping.grace_seconds() + 5)
 
 
-def _tally_from_store(outcome: StudyOutcome, store: Store, experiment: str, study: str, parent_id: str,
-                      error: BaseException) -> None:
-    """Count the children of ``parent_id`` as stored: a job that died (killed, node lost,
-    time limit) makes submitit raise for the whole array, but every run recorded itself."""
-    for rec in load_runs(store, experiment, study):
-        if rec.tags.get("mlflow.parentRunId") != parent_id:
-            continue
-        res = {"label": rec.tags.get("mlflow.runName", ""), "run_id": rec.run_id, "status": rec.status,
-               "failure": rec.failure, "error": rec.error}
-        outcome.results.append(res)
-        outcome.finished += rec.status == "FINISHED"
-        outcome.failed += rec.status in ("FAILED", "KILLED")
-        outcome.diverged += rec.failure == "diverged"
-    lost = outcome.launched - len(outcome.results)
-    outcome.failed += max(0, lost)
-    print(f"[study] launcher: {type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
-          f" ({max(0, lost)} jobs left no finished record; their claims expire and the next `study run` retries them)",
-          flush=True)
-
-
-def _finish(inv: Invocation, store: Store, exp_id: str, outcome: StudyOutcome, echo: Callable[[str], None]) -> None:
-    """End the parent run FINISHED with the counts; say what happened and where to browse it."""
-    store.terminate(outcome.parent_run_id, "FINISHED", {"n_finished": str(outcome.finished),
-                                                        "n_failed": str(outcome.failed),
-                                                        "n_diverged": str(outcome.diverged),
-                                                        "n_claimed_elsewhere": str(outcome.claimed_elsewhere)})
-    elsewhere_txt = f", {outcome.claimed_elsewhere} claimed by other invocations" if outcome.claimed_elsewhere else ""
-    echo(f"{inv.name}: {outcome.finished} finished, {outcome.failed} failed ({outcome.diverged} diverged),"
-         f" {outcome.skipped} skipped{elsewhere_txt}; parent run {outcome.parent_run_id} in {inv.experiment}"
-         f" at {inv.uri}")
+def _finish(inv: Invocation, store: Store, exp_id: str, outcome: StudyOutcome, trainer: str,
+            echo: Callable[[str], None]) -> None:
+    """Settle the plan against the store (``completion``: the exit status), end the parent run
+    FINISHED with the counts, say what happened, what is left and where to browse it."""
+    comp = completion.settle(load_runs(store, inv.experiment, inv.name), inv.planned, inv.lease_s, trainer)
+    outcome.exit_status = comp.exit_status
+    if outcome.parent_run_id:
+        store.terminate(outcome.parent_run_id, "FINISHED", {
+            "n_finished": str(outcome.finished), "n_failed": str(outcome.failed), "n_diverged": str(outcome.diverged),
+            "n_claimed_elsewhere": str(outcome.claimed_elsewhere), "n_held_elsewhere": str(len(comp.held)),
+            "n_missing": str(len(comp.missing))})
+        elsewhere_txt = f", {outcome.claimed_elsewhere} claimed by other invocations" * bool(outcome.claimed_elsewhere)
+        echo(f"{inv.name}: {outcome.finished} finished, {outcome.failed} failed ({outcome.diverged} diverged),"
+             f" {outcome.skipped} skipped{elsewhere_txt}; parent run {outcome.parent_run_id} in {inv.experiment}"
+             f" at {inv.uri}")
+    for line in completion.summary(comp, inv.lease_s, inv.command):
+        echo(line)
     echo(f"browse: {ui_link(inv.uri, exp_id)}")

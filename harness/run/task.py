@@ -5,7 +5,9 @@ heartbeat; ``run.lease``), fills it (tags, params, the scene as a dataset input,
 resolved config), trains through ``run.training.run_training`` with an ``MlflowTracker``,
 logs what the trainer did not, and ends the run FINISHED, or FAILED with ``failure`` =
 diverged | input_error | crashed and the error in ``error``. A run claimed elsewhere in the
-meantime comes back ``SKIPPED``.
+meantime comes back ``SKIPPED``. A run stopped by Ctrl-C, SIGTERM or SIGHUP (``run.stopping``)
+ends KILLED with ``failure=interrupted`` and the signal in ``stop_signal``, after the tracker has
+written what the trainer logged; a worker once stopped starts no further run.
 """
 
 from __future__ import annotations
@@ -20,10 +22,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from ftgspp.errors import InputError
 from ftgspp.tracker import RunResult
-from harness.run import lease, progress, runlog
+from harness.run import lease, progress, runlog, stopping
 from harness.spec.confighash import config_hash, flatten_config
 from harness.spec.plan import resolve
-from harness.tracking.conventions import scene_dataset, source_tags, system_metrics
+from harness.tracking.conventions import run_name, scene_dataset, source_tags, system_metrics
 from harness.tracking.mlflow_tracker import MlflowTracker
 from harness.tracking.provenance import git_sha, resolve_backend, resolve_device, trainer_fingerprint
 from harness.tracking.store import Store
@@ -71,6 +73,28 @@ def _outcome_tags(result: RunResult | None, exc: BaseException | None) -> tuple[
     return "FAILED", {"failure": failure, "error": message}
 
 
+def _end_killed(store: Store, run_id: str, exc: BaseException) -> None:
+    """End a claimed run KILLED with the stop's tags, unless it has ended already; a store that
+    fails now is left to the study process, which ends what its workers left RUNNING."""
+    try:
+        if store.status(run_id) == "RUNNING":
+            store.terminate(run_id, "KILLED", stopping.killed_tags(exc))
+    except Exception:
+        pass
+
+
+def _killed(store: Store, tracker: MlflowTracker, label: str, log: Path, exc: BaseException) -> None:
+    """A run stopped while it trained: what the trainer logged so far is written, the run ends KILLED."""
+    why = stopping.killed_tags(exc)["error"]
+    with open(log, "a") as fh:
+        fh.write(f"[run] {label}: {why}\n")
+    try:
+        tracker.flush()
+    finally:
+        _end_killed(store, tracker.run_id, exc)
+    print(f"[run] {label}: KILLED ({why})", flush=True)
+
+
 def _artifact_subdir(path: Path, out_dir: Path) -> str | None:
     try:
         rel = path.resolve().relative_to(out_dir.resolve()).parent.as_posix()
@@ -97,6 +121,14 @@ class RunTask:
     trainer: str = ""  # the trainer fingerprint a finished run must have to count as done ("": any)
 
     def __call__(self, dcfg: DictConfig) -> dict[str, Any]:
+        # in a worker's main thread SIGTERM/SIGHUP/SIGINT stop the run as Ctrl-C does (run.stopping);
+        # in the study process (basic launcher) the study's own handlers are already on
+        with stopping.on_signals():
+            if (signum := stopping.received()) is not None:  # this worker is stopping: no new run
+                raise stopping.Stopped(signum)
+            return self._run(dcfg)
+
+    def _run(self, dcfg: DictConfig) -> dict[str, Any]:
         from hydra.core.hydra_config import HydraConfig
 
         hydra_cfg = HydraConfig.get()
@@ -104,12 +136,22 @@ class RunTask:
         out_dir = Path(hydra_cfg.runtime.output_dir)
         cfg = resolve(dcfg, job.label)
         store = _store(self.uri)
-        claim = lease.acquire(store, self.experiment_id, job.label,
+        claim = lease.acquire(store, self.experiment_id, run_name(job.label, job.tags["profile"]),
                               {**job.tags, "kind": "run", "mlflow.parentRunId": self.parent_run_id}, self.lease_s,
                               trainer=self.trainer)
         if claim.run_id is None:
             print(f"[run] {job.label}: skipped ({claim.reason})", flush=True)
             return {"label": job.label, "run_id": "", "status": "SKIPPED", "reason": claim.reason, "seconds": 0.0}
+        try:
+            return self._claimed(store, claim, job, cfg, dcfg, out_dir, hydra_cfg)
+        except (KeyboardInterrupt, SystemExit) as exc:  # stopped anywhere after the claim: the run was killed
+            _end_killed(store, claim.run_id, exc)
+            raise
+
+    def _claimed(self, store: Store, claim: lease.Claim, job: JobInfo, cfg: Any, dcfg: DictConfig, out_dir: Path,
+                 hydra_cfg: Any) -> dict[str, Any]:
+        """Train the claimed run and record its outcome."""
+        assert claim.run_id is not None
         with lease.Heartbeat(store, claim.run_id, self.lease_s) as beat, system_metrics(claim.run_id, self.uri):
             try:
                 tracker = self._open_run(store, claim, job, cfg, dcfg, out_dir)
@@ -123,15 +165,18 @@ class RunTask:
             try:
                 with runlog.capture(log, job.label, f"job #{hydra_cfg.job.num}: {' '.join(hydra_cfg.overrides.task)}"):
                     result = (self.train_fn or _default_train)(cfg, out_dir, tracker)
-            except Exception as exc:  # any crash is recorded, never lost
-                error = exc
+            except Exception as exc:
+                if (signum := stopping.received()) is not None:  # the stop, turned into another error by a
+                    stop = stopping.Stopped(signum)               # Numba kernel or autograd it passed through
+                    _killed(store, tracker, job.label, log, stop)
+                    raise stop from exc
+                error = exc  # any crash is recorded, never lost
                 (out_dir / "error.txt").write_text(traceback.format_exc())
                 with open(log, "a") as fh:
                     fh.write(traceback.format_exc())
                 tracker.log_artifact(out_dir / "error.txt")
-            except BaseException:  # Ctrl-C / SystemExit: the run was killed
-                tracker.flush()
-                store.terminate(tracker.run_id, "KILLED", {"failure": "interrupted", "error": "interrupted"})
+            except BaseException as exc:  # Ctrl-C, SIGTERM, SIGHUP (run.stopping), SystemExit: the run was killed
+                _killed(store, tracker, job.label, log, exc)
                 raise
             seconds = time.time() - t0
             status, extra = _outcome_tags(result, error)

@@ -6,15 +6,21 @@
 - ``scene_dataset``: the run's scene as an MLflow dataset input (name, digest = a fingerprint
   of the scene, source = the synthetic generator's arguments or the data folder, profile =
   format and path), so runs can be grouped by dataset.
+- ``run_name``: a child run's name, ``<variant>/<scene>/seed<k> [<profile>]``, so runs of one
+  study made under two profiles never share a name (their ``profile`` tag says it too);
 - ``ui_link``: where the MLflow UI shows an experiment's training runs, as the study's view
-  (``study_view``: the runs grouped by variant, with the variant, scene and seed columns
-  first, then PSNR, SSIM, LPIPS and training time); ``run_link`` one run; ``browse_command``
-  the shell command a report gives for opening the store;
+  (``study_view``: the runs grouped by profile and variant, with the profile, variant, scene
+  and seed columns first, then PSNR, SSIM, LPIPS and training time), after the command that
+  serves a SQLite store (``mlflow_executable``: the ``mlflow`` beside the running interpreter,
+  so it works without activating the environment); ``run_link`` one run, in the training view;
+  ``browse_command`` the shell command a report gives for opening the store;
 - ``experiment_tags``: the experiment's description (``mlflow.note.content``: the study's
   question and the commands that fill and report it, in plain text) and that view;
 - ``system_metrics``: MLflow's own ``SystemMetricsMonitor`` (``system/cpu_utilization_percentage``,
   ``system/system_memory_usage_megabytes``, ...) sampling every 15 s; a no-op when psutil
-  is missing.
+  is missing;
+- ``verdict_tags``: the tags ``study report`` sets on the parent run it reports, one
+  ``verdict.<claim>`` per claim (``report.mlflow_answer``).
 """
 
 from __future__ import annotations
@@ -25,6 +31,10 @@ import hashlib
 import json
 import logging
 import os
+import re
+import shlex
+import shutil
+import sys
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -33,6 +43,28 @@ from harness.tracking.store import display_uri
 
 SYSTEM_METRICS_INTERVAL_S = 15.0
 SYNTH_GENERATOR = "ftgspp.data.synthetic.build.generate"
+PROFILE_TAG = "profile"  # every child and parent run's study profile (quick, smoke, paper)
+VERDICT_TAG_PREFIX = "verdict."  # verdict.<claim> = reproduced | inconclusive | ... on a reported parent run
+
+
+def run_name(label: str, profile: str) -> str:
+    """A child run's name: its label (``baseline/studio/seed0``) and its profile in brackets.
+
+    The profile is part of the name because the same (variant, scene, seed) runs under every
+    profile of a study, and MLflow's tables show names, not keys.
+    """
+    return f"{label} [{profile}]"
+
+
+def verdict_tags(verdicts: dict[str, str]) -> dict[str, str]:
+    """``{claim: verdict}`` as the parent run's tags ``verdict.<claim>``; one scene of a
+    scene-dependent claim (``claim[scene]``) as ``verdict.<claim>/<scene>`` (MLflow's keys allow
+    letters, digits and ``_-. :/`` only; anything else becomes ``_``)."""
+    def key(claim: str) -> str:
+        claim = re.sub(r"\[([^\]]*)\]", r"/\1", claim)
+        return VERDICT_TAG_PREFIX + re.sub(r"[^\w.\- :/]", "_", claim)
+
+    return {key(claim): verdict for claim, verdict in verdicts.items()}
 
 
 def source_tags(command: str) -> dict[str, str]:
@@ -117,8 +149,13 @@ TRAINING_VIEW = "workflowType=machine_learning"  # the training-runs view, not t
 # each against harness/spec/metrics.py)
 VIEW_METRICS = ("psnr", "ssim1", "lpips_alex", "lpips_alex_01", "train_seconds")
 # the study's key tags, the view's first columns, with their widths in pixels ("dispatch_baseline" fits)
-VIEW_TAGS = {"variant": 150, "scene": 90, "seed": 60}
-VIEW_GROUP_TAG = "variant"
+VIEW_TAGS = {PROFILE_TAG: 70, "variant": 150, "scene": 90, "seed": 60}
+# the groups: one per (profile, variant), so a group's mean never mixes a smoke run with a quick one
+VIEW_GROUP_TAGS = (PROFILE_TAG, "variant")
+# the run-name column, wide enough for "Group: profile: quick, variant: dispatch_avx2" and for
+# "dispatch_baseline/studio/seed0 [quick]"; the metric columns wide enough for "31.556 (average)"
+VIEW_NAME_COLUMN, VIEW_NAME_PX, VIEW_METRIC_PX = "attributes.`Run Name`", 330, 120
+VIEW_FILTER_TAG = "variant"  # carried by every child run, by no parent run
 
 
 def _column(kind: str, name: str) -> str:
@@ -127,23 +164,30 @@ def _column(kind: str, name: str) -> str:
 
 def study_view(metrics: tuple[str, ...] = VIEW_METRICS) -> dict[str, Any]:
     """The view state ``ui_link`` opens: the training runs (the filter leaves out the
-    invocations' parent runs, which carry no ``variant`` tag) grouped by variant (each group's
-    row shows its runs' mean), in the order they started (a study's variants in its file's
-    order), with the study's key tags as the first columns and then the headline metrics.
+    invocations' parent runs, which carry no ``variant`` tag) grouped by profile and variant
+    (each group's row shows its runs' mean: quick and smoke runs are never averaged together),
+    in the order they started (a study's variants in its file's order), with the study's key
+    tags as the first columns and then the headline metrics. A run without a ``profile`` tag
+    would land in the UI's "Additional runs" group; every run the harness made carries one.
 
     ``selectedColumns`` says which columns show, ``columnOrder`` where (the UI would otherwise
-    put every metric before every tag), ``columnWidths`` how wide (pixels); ``groupBy`` is the
-    UI's ``RunsGroupByConfig``.
+    put every metric before every tag), ``columnWidths`` how wide (pixels: the UI sizes only
+    the columns ``columnOrder`` names, hence the run name there); ``groupBy`` is the UI's
+    ``RunsGroupByConfig``. The UI shows a metric as JavaScript prints the number (a
+    group's mean to 9 or more digits): MLflow 3.17 has no per-column format, so the means at
+    the registry's decimals are on the reported parent run (``report.mlflow_answer``).
     """
     columns = [*(_column("tags", t) for t in VIEW_TAGS), *(_column("metrics", m) for m in metrics)]
     return {
-        "searchFilter": f"tags.{VIEW_GROUP_TAG} LIKE '%'",
+        "searchFilter": f"tags.{VIEW_FILTER_TAG} LIKE '%'",
         "orderByKey": _column("attributes", "start_time"),
         "orderByAsc": True,
         "selectedColumns": columns,
-        "columnOrder": columns,
-        "columnWidths": {_column("tags", t): px for t, px in VIEW_TAGS.items()},
-        "groupBy": {"aggregateFunction": "average", "groupByKeys": [{"mode": "tag", "groupByData": VIEW_GROUP_TAG}]},
+        "columnOrder": [VIEW_NAME_COLUMN, *columns],
+        "columnWidths": {VIEW_NAME_COLUMN: VIEW_NAME_PX, **{_column("tags", t): px for t, px in VIEW_TAGS.items()},
+                         **{_column("metrics", m): VIEW_METRIC_PX for m in metrics}},
+        "groupBy": {"aggregateFunction": "average",
+                    "groupByKeys": [{"mode": "tag", "groupByData": t} for t in VIEW_GROUP_TAGS]},
     }
 
 
@@ -168,14 +212,40 @@ def _ui_base(uri: str) -> str:
     return "http://127.0.0.1:5000/"
 
 
+def mlflow_executable() -> str:
+    """The ``mlflow`` command of the environment the harness runs in, as an absolute path: the
+    console script beside the running interpreter (``.venv/bin/mlflow``), so the printed command
+    works without activating the environment; else the one on PATH; else plain ``mlflow``."""
+    beside = Path(sys.executable).parent / "mlflow"  # not resolved: a venv's python is a symlink
+    if beside.is_file() and os.access(beside, os.X_OK):
+        return str(beside.absolute())
+    found = shutil.which("mlflow")
+    return os.path.abspath(found) if found else "mlflow"
+
+
+def _relative_to_cwd(path: str) -> str:
+    """``path`` relative to the working directory when inside it (``.venv/bin/mlflow``: what a
+    report committed from one clone can say to every other), else as given."""
+    try:
+        return Path(path).relative_to(Path.cwd()).as_posix()
+    except ValueError:
+        return path
+
+
+def _ui_command(uri: str, executable: str) -> str:
+    """The shell command serving a SQLite store on http://127.0.0.1:5000, quoted for the shell."""
+    return shlex.join([executable, "ui", "--backend-store-uri", uri])
+
+
 def _ui_hint(uri: str, url: str) -> str:
     if uri.startswith(("http://", "https://")):
         return url
-    return f"mlflow ui --backend-store-uri {uri}, then {url}"
+    return f"{_ui_command(uri, mlflow_executable())}, then {url}"
 
 
 def ui_link(uri: str, experiment_id: str) -> str:
-    """Where the experiment's runs table is in the MLflow UI, in the study view.
+    """Where the experiment's runs table is in the MLflow UI, in the study view, after the
+    command that serves a SQLite store (the environment's ``mlflow`` by its absolute path).
 
     MLflow 3.17's UI opens every experiment in the GenAI view unless the browser chose
     "Model training" before (it ignores ``mlflow.experimentKind`` there); the
@@ -188,11 +258,21 @@ def ui_link(uri: str, experiment_id: str) -> str:
 
 
 def browse_command(uri: str) -> str:
-    """The shell command that shows the store's runs: ``mlflow ui`` on a SQLite store (given as
-    ``display_uri`` writes it), else ``open`` on the URI."""
-    return f"mlflow ui --backend-store-uri {display_uri(uri)}" if uri.startswith("sqlite") else f"open {uri}"
+    """The shell command that shows the store's runs, as a report page gives it: ``mlflow ui`` on
+    a SQLite store (the environment's ``mlflow`` and the store both as ``display_uri`` writes
+    paths: relative to the working directory, the clone's root, when inside it), else ``open`` on
+    the URI."""
+    if not uri.startswith("sqlite"):
+        return f"open {uri}"
+    return _ui_command(display_uri(uri), _relative_to_cwd(mlflow_executable()))
 
 
 def run_link(uri: str, experiment_id: str, run_id: str) -> str:
-    """One run's page (overview, metrics, artifacts) in the training-runs view."""
+    """One run's page (overview, metrics, artifacts) in the training-runs view.
+
+    MLflow 3.17 draws a run page as a training run or as a GenAI evaluation from the
+    ``workflowType`` in its URL, else from the browser's saved choice (the sidebar's switch,
+    GenAI until a user flips it), never from the experiment's ``mlflow.experimentKind``; the
+    run-name links of its runs table carry no ``workflowType``. This link carries it.
+    """
     return _ui_hint(uri, f"{_ui_base(uri)}#/experiments/{experiment_id}/runs/{run_id}?{TRAINING_VIEW}")

@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
-from harness.tracking.store import Store, resolve_uri, store_exists
+from harness.tracking.store import Store, check_reachable, resolve_uri, store_exists
 
 RunKey = tuple[str, str, int, str]  # variant, scene, seed, config_hash (``PlannedRun.key``)
 
@@ -76,8 +76,12 @@ def _record(run: Any) -> RunRecord:
 
 
 def open_store(uri: str) -> Store | None:
-    """A store for reading, or None if the SQLite file does not exist."""
-    return Store(uri) if store_exists(uri) else None
+    """A store for reading, or None if the SQLite file does not exist; one line (``InputError``)
+    for a server or database that does not answer."""
+    if not store_exists(uri):
+        return None
+    check_reachable(uri)
+    return Store(uri)
 
 
 def load_runs(store: Store | None, experiment: str, study: str, kind: str = "run") -> list[RunRecord]:

@@ -33,14 +33,75 @@ T = TypeVar("T")
 
 
 def resolve_uri(explicit: str | None, configured: str) -> str:
-    """``tracking.uri=`` given on the command line, else ``MLFLOW_TRACKING_URI``, else the config.
+    """``tracking.uri=`` given on the command line, else ``MLFLOW_TRACKING_URI`` (an empty one is
+    unset), else the config; ``InputError`` (one line) for a URI that is not one (``check_uri``).
 
     A relative SQLite path is made absolute (MLflow caches stores by URI, and worker
     processes must find the same file).
     """
-    uri = explicit or os.environ.get("MLFLOW_TRACKING_URI") or configured or DEFAULT_URI
+    if explicit is not None:
+        uri, where = explicit, "tracking.uri"
+    elif os.environ.get("MLFLOW_TRACKING_URI"):
+        uri, where = os.environ["MLFLOW_TRACKING_URI"], "MLFLOW_TRACKING_URI"
+    else:
+        uri, where = configured or DEFAULT_URI, "tracking.uri"
+    check_uri(uri, where)
     path = sqlite_path(uri)
     return f"sqlite:///{path.resolve()}" if path is not None and not path.is_absolute() else uri
+
+
+URI_FORMS = "sqlite:///PATH.db, http(s)://HOST:PORT or postgresql://USER@HOST/DB"
+
+
+def check_uri(uri: str, where: str = "tracking.uri") -> None:
+    """``InputError`` naming ``where`` unless ``uri`` is a well-formed tracking URI of a store
+    this harness uses: ``sqlite:///`` and a file path (relative, or absolute after a fourth slash)
+    that is not a folder, ``http(s)://`` and a host (a port is a number), or a database URL
+    (postgresql, mysql, mssql, with an optional ``+driver``) SQLAlchemy can parse. Nothing is
+    connected to here (``check_store`` does that)."""
+    import re
+    import urllib.parse
+
+    def bad(problem: str) -> InputError:
+        return InputError(where, f"'{_redact(uri)}' {problem} (a tracking URI is {URI_FORMS})")
+
+    if not uri.strip():
+        raise bad("is empty")
+    match = re.match(r"([A-Za-z][A-Za-z0-9+.-]*):", uri)
+    if match is None or len(match.group(1)) == 1:  # c:\path: a drive letter, not a scheme
+        raise bad("has no scheme: a local store is sqlite:///PATH.db")
+    scheme = match.group(1).lower()
+    base = scheme.split("+", 1)[0]
+    if base == "sqlite":
+        path = sqlite_path(uri)
+        if path is not None and not uri[len("sqlite:///"):]:
+            raise bad("names no database file: sqlite:///PATH.db")
+        if path is None:
+            raise bad("is not a SQLite URI: sqlite:/// (three slashes) and a file, sqlite:////abs/path.db for an"
+                      " absolute path")
+        if path.is_dir():
+            raise bad(f"names the folder {path}, not a database file")
+        return
+    if scheme in ("http", "https"):
+        parts = urllib.parse.urlsplit(uri)
+        try:
+            parts.port  # noqa: B018 - raises for a port that is not a number
+        except ValueError as exc:
+            raise bad(f"has a bad port ({exc})") from None
+        if not uri.lower().startswith(f"{scheme}://") or not parts.hostname:
+            raise bad(f"names no host: {scheme}://HOST:PORT")
+        return
+    if base in DB_SCHEMES:
+        from sqlalchemy.engine import make_url
+
+        try:
+            url = make_url(uri)
+        except Exception as exc:  # ArgumentError, ValueError: not a URL SQLAlchemy can read
+            raise bad(f"is not a database URL ({str(exc).splitlines()[0]})") from None
+        if not url.host and not url.database:
+            raise bad(f"names no host or database: {base}://USER@HOST/DB")
+        return
+    raise bad(f"has the scheme '{scheme}', which this harness does not use")
 
 
 def sqlite_path(uri: str) -> Path | None:
@@ -68,12 +129,19 @@ def store_exists(uri: str) -> bool:
 
 def check_store(uri: str, timeout_s: float = 5.0) -> None:
     """Fail with one clear line if the store cannot be used, before anything is written."""
+    check_uri(uri)
     path = sqlite_path(uri)
     if path is not None:
         folder = path.resolve().parent
         if not folder.is_dir() or not os.access(folder, os.W_OK):
             raise InputError("tracking.uri", f"{uri}: folder {folder} does not exist or is not writable")
         return
+    check_reachable(uri, timeout_s)
+
+
+def check_reachable(uri: str, timeout_s: float = 5.0) -> None:
+    """One line (``InputError``) if the server or database of a non-SQLite ``uri`` does not
+    answer within ``timeout_s`` (MLflow's own client would retry for minutes); reads nothing."""
     if uri.split(":", 1)[0].split("+", 1)[0] in DB_SCHEMES:
         _check_database(uri, timeout_s)
         return
@@ -128,6 +196,7 @@ class Store:
 
         logging.getLogger("alembic").setLevel(logging.WARNING)
         logging.getLogger("mlflow.store.db.utils").setLevel(logging.WARNING)  # "Creating initial ... tables"
+        check_uri(uri)  # one line for a malformed URI, not SQLAlchemy's traceback
         self.uri = uri
         self.retry_s = retry_s
         db = sqlite_path(uri)

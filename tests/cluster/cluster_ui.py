@@ -2,7 +2,7 @@
 
 A real smoke study (secret5, real trainer, SQLite store) is browsed through ``mlflow ui``:
 the runs table, a child run's overview (source, commit, dataset), its metrics and its
-artifacts, the link ``study run`` prints (runs grouped by variant, the variant, scene and seed
+artifacts, the link ``study run`` prints (runs grouped by profile and variant, the profile, variant, scene and seed
 columns first) and the home page (the description as plain text). Screenshots go to
 ``$FTGSPP_UI_SHOTS`` (default: a folder under /var/tmp, printed); the rendered DOM is checked
 for what the screenshots should show.
@@ -105,7 +105,8 @@ def test_mlflow_ui_shows_runs_sources_datasets_metrics_and_artifacts() -> None:
         assert child.tags["mlflow.runName"] in view and "secret5-smoke-" not in view
         assert all(f">{col}<" in view for col in ("psnr", "ssim1", "lpips_alex", "variant", "seed"))
         assert "How much do metrics vary" in view, "the experiment's description"
-        assert "Group by: variant" in view and "Group: baseline" in view and "Group: cc" in view, "grouped by variant"
+        assert "Group by: profile" in view and "Group: profile: smoke, variant: baseline" in view \
+            and "Group: profile: smoke, variant: cc" in view, "grouped by profile and variant"
         at = _header_positions(view)
         assert at["tags.`variant`"] < at["tags.`scene`"] < at["tags.`seed`"] < at["metrics.`psnr`"], at
         home = doms["6_home"]  # the Description column shows mlflow.note.content verbatim

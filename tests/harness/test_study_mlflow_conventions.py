@@ -1,5 +1,6 @@
 """Runs carry MLflow's own conventions: experiment kind, source tags, the scene as a dataset
-input, and system metrics from MLflow's sampler."""
+input, and system metrics from MLflow's sampler; the profile in every run's name and tags, so
+runs of one study under two profiles are told apart (and grouped apart by the study view)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from fakes import fake_generate, fake_train
 
 from harness.run.runner import run_study
 from harness.spec.runs import Selection
-from harness.tracking.conventions import folder_fingerprint, scene_dataset
+from harness.tracking.conventions import VIEW_TAG_PREFIX, folder_fingerprint, run_name, scene_dataset
 from harness.tracking.provenance import git_sha
 from harness.tracking.records import load_runs, open_store
 
@@ -48,6 +49,34 @@ def test_study_runs_follow_mlflow_conventions(workdir: Path, monkeypatch: pytest
     assert parent_input.dataset.digest == ds.digest, "the parent row shows the study's scenes"
     system = {k for k in rec.metrics if k.startswith("system/")}
     assert {"system/cpu_utilization_percentage", "system/system_memory_usage_megabytes"} <= system
+
+
+def test_runs_of_two_profiles_carry_their_profile_in_name_and_tags(workdir: Path) -> None:
+    """A quick and a smoke run of one study: the same (variant, scene, seed) twice, never under
+    one name; the study view's groups split by profile, so no group row averages the two."""
+    quiet = dict(studies_dir=TOY_STUDIES, train_fn=fake_train, generate=fake_generate, echo=lambda s: None)
+    for profile in ("quick", "smoke"):
+        assert run_study("toy", Selection(profile=profile, variants=["baseline", "cc"], seeds=1), **quiet).finished == 2
+    store = open_store(f"sqlite:///{Path('mlflow.db').resolve()}")
+    runs = load_runs(store, "ftgspp/toy", "toy")
+    assert sorted(r.tags["profile"] for r in runs) == ["quick", "quick", "smoke", "smoke"]
+    for r in runs:
+        label = f"{r.tags['variant']}/{r.tags['scene']}/seed{r.tags['seed']}"
+        assert r.tags["mlflow.runName"] == run_name(label, r.tags["profile"]) == f"{label} [{r.tags['profile']}]"
+    assert len({r.tags["mlflow.runName"] for r in runs}) == 4, "no two runs share a name"
+    parents = load_runs(store, "ftgspp/toy", "toy", kind="study")
+    assert [p.tags["profile"] for p in parents] == ["quick", "smoke"]
+    assert [p.tags["mlflow.runName"].split("-")[1] for p in parents] == ["quick", "smoke"]
+
+    # the study view's groups, as the UI forms them: one per value of its group-by tags
+    exp = store.client.get_experiment_by_name("ftgspp/toy")
+    view = json.loads(exp.tags[VIEW_TAG_PREFIX + "ftgspp-study"])
+    keys = [k["groupByData"] for k in view["groupBy"]["groupByKeys"]]
+    shown = store.client.search_runs([exp.experiment_id], filter_string=view["searchFilter"])
+    groups: dict[tuple[str, ...], set[str]] = {}
+    for run in shown:
+        groups.setdefault(tuple(run.data.tags[k] for k in keys), set()).add(run.data.tags["profile"])
+    assert len(groups) == 4 and all(len(profiles) == 1 for profiles in groups.values()), groups
 
 
 def test_real_scene_dataset_is_fingerprinted_by_its_files(tmp_path: Path) -> None:

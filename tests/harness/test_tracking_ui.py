@@ -1,13 +1,17 @@
 """The MLflow UI as a user opens it: the printed link selects the training-runs view and the
 study's saved view, whose filter (run through MLflow's own search) keeps every training run
-and no invocation parent, grouped by variant with the variant, scene and seed columns first;
-the experiment carries a description that reads as plain text. (What the browser shows:
-tests/cluster/cluster_ui.py.)"""
+and no invocation parent, grouped by profile and variant with the profile, variant, scene and
+seed columns first; the experiment carries a description that reads as plain text; the
+printed command names the environment's ``mlflow`` by its absolute path. (What the browser
+shows: tests/cluster/cluster_ui.py.)"""
 
 from __future__ import annotations
 
 import json
+import os
 import re
+import shlex
+import sys
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
@@ -19,7 +23,16 @@ from fakes import fake_generate, fake_train
 from harness.run.runner import run_study
 from harness.spec.runs import Selection
 from harness.spec.study_files import load_study
-from harness.tracking.conventions import NOTE_TAG, VIEW_KEY, VIEW_TAG_PREFIX, VIEW_TAGS, run_link, study_view, ui_link
+from harness.tracking.conventions import (
+    NOTE_TAG,
+    VIEW_KEY,
+    VIEW_TAG_PREFIX,
+    VIEW_TAGS,
+    browse_command,
+    run_link,
+    study_view,
+    ui_link,
+)
 from harness.tracking.records import open_store
 
 
@@ -40,12 +53,15 @@ def test_the_printed_link_opens_the_study_view_of_a_described_experiment(workdir
     assert not any(mark in note for mark in ("**", "`", "__")), note
 
     view = json.loads(tags[VIEW_TAG_PREFIX + VIEW_KEY])
-    key_tags = ["tags.`variant`", "tags.`scene`", "tags.`seed`"]
-    assert view["columnOrder"][:3] == key_tags and view["selectedColumns"] == view["columnOrder"]
-    assert {"metrics.`psnr`", "metrics.`ssim1`", "metrics.`lpips_alex`"} <= set(view["columnOrder"][3:])
+    key_tags = ["tags.`profile`", "tags.`variant`", "tags.`scene`", "tags.`seed`"]
+    # the run name (only to size it: the UI sizes the columns the order names), then the key tags
+    assert view["columnOrder"][:5] == ["attributes.`Run Name`", *key_tags]
+    assert view["selectedColumns"] == view["columnOrder"][1:]
+    assert {"metrics.`psnr`", "metrics.`ssim1`", "metrics.`lpips_alex`"} <= set(view["columnOrder"][5:])
     assert set(view["columnWidths"]) <= set(view["columnOrder"])
-    assert view["groupBy"] == {"aggregateFunction": "average",
-                               "groupByKeys": [{"mode": "tag", "groupByData": "variant"}]}  # the UI's RunsGroupByConfig
+    assert view["groupBy"] == {"aggregateFunction": "average",  # the UI's RunsGroupByConfig: a group per
+                               "groupByKeys": [{"mode": "tag", "groupByData": "profile"},  # (profile, variant)
+                                               {"mode": "tag", "groupByData": "variant"}]}
     every = store.client.search_runs([exp_id])
     shown = store.client.search_runs([exp_id], filter_string=view["searchFilter"])
     parents = [r for r in every if "variant" not in r.data.tags]
@@ -56,10 +72,33 @@ def test_the_printed_link_opens_the_study_view_of_a_described_experiment(workdir
     browse = next(line for line in lines if line.startswith("browse: "))
     assert browse == f"browse: {ui_link(uri, exp_id)}"
     assert f"#/experiments/{exp_id}/runs?workflowType=machine_learning&viewStateShareKey={VIEW_KEY}" in browse
-    assert browse.startswith(f"browse: mlflow ui --backend-store-uri {uri}, then http://127.0.0.1:5000/")
+    # the environment's own mlflow, by its absolute path: the command works without activating it
+    command, url = browse.removeprefix("browse: ").split(", then ")
+    mlflow_exe, *args = shlex.split(command)
+    assert args == ["ui", "--backend-store-uri", uri] and url.startswith("http://127.0.0.1:5000/")
+    assert os.path.isabs(mlflow_exe) and os.access(mlflow_exe, os.X_OK)
+    assert Path(mlflow_exe).parent == Path(sys.executable).parent, "the mlflow of the interpreter that runs the study"
     # a filter or order in the URL (searchFilter, orderByKey, ...) would make the UI ignore the saved view
     query = parse_qs(urlsplit(urlsplit(browse.split(", then ")[1]).fragment).query)
     assert query == {"workflowType": ["machine_learning"], "viewStateShareKey": [VIEW_KEY]}
+
+
+def test_a_report_names_the_environments_mlflow_as_a_clone_reads_it(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A report page's command: the store and the ``mlflow`` relative to the clone's root when
+    inside it (a committed report says the same to every clone), absolute otherwise."""
+    clone = tmp_path / "clone"
+    exe = clone / ".venv" / "bin" / "mlflow"
+    exe.parent.mkdir(parents=True)
+    exe.write_text("#!/bin/sh\n")
+    exe.chmod(0o755)
+    monkeypatch.setattr(sys, "executable", str(exe.parent / "python"))
+    monkeypatch.chdir(clone)
+    assert browse_command(f"sqlite:///{clone / 'mlflow.db'}") == ".venv/bin/mlflow ui --backend-store-uri sqlite:///mlflow.db"
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    assert browse_command("sqlite:////data/m.db") == f"{exe} ui --backend-store-uri sqlite:////data/m.db"
+    assert browse_command("http://tracking:5000") == "open http://tracking:5000"
 
 
 def test_links_to_a_server_are_direct() -> None:
