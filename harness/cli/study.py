@@ -58,9 +58,10 @@ def _csv(text: str) -> list[str]:
 
 def _selection_args(p: argparse.ArgumentParser, name_optional: bool = False) -> None:
     if name_optional:
-        p.add_argument("name", nargs="?", default=None, help="study name (study list); none with --all")
+        p.add_argument("name", nargs="?", default=None,
+                       help="study name (study list) or a study file's path (path/to/mine.yaml); none with --all")
     else:
-        p.add_argument("name", help="study name (study list)")
+        p.add_argument("name", help="study name (study list) or a study file's path (path/to/mine.yaml)")
     p.add_argument("--profile", choices=PROFILES, default=None, help="quick (default), paper or smoke")
     p.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the profile's)")
     p.add_argument("--scenes", type=_csv, action="extend", default=[], help="comma-separated subset of scenes")
@@ -196,11 +197,12 @@ def cmd_list() -> int:
     for name in list_studies():
         s = load_study(name)
         print(f"{name}: {s.question}")
-        for prof in ("quick", "paper"):
+        for prof in (p for p in ("quick", "paper") if p in s.profiles):
             p = s.profiles[prof]
             runs = expand(s, Selection(profile=prof))
             print(f"    {prof:5s}: {describe_runs(runs)}; {p.estimate(len(runs), p.jobs)}")
-        print(f"    run: {s.profiles['quick'].command}")
+        first = s.profiles.get("quick") or next(iter(s.profiles.values()))
+        print(f"    run: {first.command or f'study run {name} --profile {first.name}'}")
     return 0
 
 
@@ -313,6 +315,10 @@ def main(argv: list[str] | None = None) -> int:
     if extra:
         args.overrides = [*args.overrides, *extra]
     try:
+        if getattr(args, "name", None):  # a study file anywhere: `study run path/to/mine.yaml`
+            from harness.spec.study_files import use_study_file
+
+            args.name = use_study_file(args.name)
         if args.command == "list":
             return cmd_list()
         if args.command == "run":

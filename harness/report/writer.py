@@ -54,6 +54,7 @@ from harness.report import (
     xt_figures,
 )
 from harness.report.results import ReportData, collect
+from harness.spec import study_files
 from harness.spec.runs import Selection, command_line
 from harness.tracking.conventions import browse_command
 from harness.tracking.provenance import all_current, checkout_fingerprint, git_sha
@@ -94,7 +95,7 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
         "",
         "```sh",
         command_line(study.name, data.sel),
-        f"study report {study.name}",
+        f"study report {str(study_files.NAMED_FILE) if study_files.NAMED_FILE else study.name}",
         "```",
         "",
     ]

@@ -111,8 +111,13 @@ def describe_runs(runs: list[RunSpec]) -> str:
 
 
 def command_line(study: str, sel: Selection, jobs: int = 1, launcher: str = "basic") -> str:
-    """The ``study run`` command that reproduces an invocation."""
-    parts = ["study", "run", study, "--profile", sel.profile]
+    """The ``study run`` command that reproduces an invocation (a study named by its file's path
+    in this process, ``study run path/to/mine.yaml``, by that path)."""
+    from harness.spec import study_files
+
+    named = study_files.NAMED_FILE
+    parts = ["study", "run", str(named) if named is not None and named.stem == study else study, "--profile",
+             sel.profile]
     if launcher != "basic":
         parts += ["--launcher", launcher]
     if sel.seeds is not None:
@@ -159,5 +164,33 @@ def standalone_command(run: RunSpec, threads: str = "") -> str:
     if threads and not any(o.startswith("threads=") for o in run.overrides):
         train.append(f"threads={threads}")
     train.append(f"hydra.run.dir=outputs/reproduce/{run.study}/{run.label}")
-    parts.append(" ".join(shlex.quote(p) for p in train))
+    where = method_path(run.overrides)
+    parts.append((f"PYTHONPATH={shlex.quote(where)} " if where else "") + " ".join(shlex.quote(p) for p in train))
     return " && ".join(parts)
+
+
+def method_path(overrides: tuple[str, ...] | list[str]) -> str:
+    """The folder a run's ``model.method=module:Class`` needs on ``PYTHONPATH`` ("" for the
+    built-in methods): the folder holding the module's top package, found without importing it
+    (``.`` when that is the clone's root, from which the commands run), else this process's
+    ``PYTHONPATH``, else a placeholder that says what to put there."""
+    import importlib.util
+    import os
+    from pathlib import Path
+
+    method = next((o.split("=", 1)[1] for o in overrides if o.startswith("model.method=")), "")
+    if ":" not in method:
+        return ""
+    top = method.split(":", 1)[0].split(".")[0]
+    if top == "ftgspp":
+        return ""
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):
+        spec = None
+    if spec is not None and (spec.submodule_search_locations or spec.origin):
+        place = Path(list(spec.submodule_search_locations or [])[0] if spec.submodule_search_locations
+                     else str(spec.origin)).resolve().parent
+        repo = Path(__file__).resolve().parents[2]
+        return "." if place == repo else str(place)
+    return os.environ.get("PYTHONPATH", "") or f"<the folder that holds {top}>"

@@ -43,7 +43,9 @@ from harness.spec.study_schema import (
     VarianceSpec,
 )
 
-STUDIES_DIR = Path(os.environ.get("FTGSPP_STUDIES", Path(__file__).resolve().parents[2] / "studies"))
+REPO_STUDIES = Path(__file__).resolve().parents[2] / "studies"  # the project's own study files
+STUDIES_DIR = Path(os.environ.get("FTGSPP_STUDIES", REPO_STUDIES))
+NAMED_FILE: Path | None = None  # the study file a command named by its path (``use_study_file``)
 SCENE_SETS_FILE = "_scene_sets.yaml"
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 TINY_SYNTH = {"width": 64, "height": 48, "n_frames": 6, "n_cameras": 5}
@@ -55,6 +57,24 @@ def list_studies(studies_dir: Path | None = None) -> list[str]:
     """Names of the study files (``_*.yaml`` files are shared data, not studies)."""
     root = Path(studies_dir or STUDIES_DIR)
     return sorted(p.stem for p in root.glob("*.yaml") if not p.name.startswith("_"))
+
+
+def use_study_file(name: str) -> str:
+    """The study a command names: a plain name (``secret5``) is returned as it is; a path to a study
+    file (``path/to/mine.yaml``, anywhere) makes its folder this process's studies folder (a folder
+    of one's own studies, with its own ``_scene_sets.yaml`` and ``_paper.yaml`` if it has them; the
+    project's register of the paper does not apply there) and returns the file's stem. One
+    ``InputError`` when the file does not exist."""
+    global STUDIES_DIR, NAMED_FILE
+    if not name.endswith((".yaml", ".yml")) and "/" not in name:
+        return name
+    path = Path(name).expanduser()
+    if path.suffix != ".yaml":
+        raise InputError(f"study file {name}", "a study file's name ends in .yaml")
+    if not path.is_file():
+        raise InputError(f"study file {name}", "no such file")
+    STUDIES_DIR, NAMED_FILE = path.parent.resolve(), path
+    return path.stem
 
 
 def load_register(studies_dir: Path | None = None) -> Register:
@@ -124,10 +144,11 @@ def _resolve(f: StudySpec, path: Path) -> StudySpec:
     where = str(path)
     require(f.name == path.stem, where, f"name '{f.name}' must match the file name")
     variants = _variants(f.variants, f"{where}: variants")
-    require("quick" in f.profiles and "paper" in f.profiles, f"{where}: profiles", "needs quick and paper")
+    # a study needs only the profiles it uses (a method of one's own may have only a quick profile)
+    require(bool(f.profiles), f"{where}: profiles", "needs at least one profile (quick, paper or smoke)")
     profiles = {str(name): _profile(str(name), p, f"{where}: profiles.{name}", variants)
                 for name, p in f.profiles.items()}
-    if "smoke" not in profiles:
+    if "smoke" not in profiles and "quick" in profiles:
         profiles["smoke"] = _smoke_from_quick(profiles["quick"], f.name)
     for name, p in profiles.items():
         if not p.baseline:
