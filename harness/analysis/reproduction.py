@@ -263,6 +263,16 @@ def summary(frame: pd.DataFrame, reference: str) -> list[str]:
     return lines
 
 
+def hosts(runs: pd.DataFrame) -> str:
+    """The CPUs (and torch kernel sets) runs were made on, most runs first: ``AMD EPYC with torch kernels AVX512 (25
+    runs)`` — the committed report's host as its runs.csv records it (``cpu_model``, ``cpu_capability``)."""
+    if runs.empty or "cpu_model" not in runs:
+        return "an unrecorded host"
+    kinds = runs.fillna({"cpu_model": "?", "cpu_capability": "?"}).groupby(
+        ["cpu_model", "cpu_capability"]).size().sort_values(ascending=False)
+    return "; ".join(f"{cpu} with torch kernels {cap} ({k} run{'s' if k != 1 else ''})" for (cpu, cap), k in kinds.items())
+
+
 def strict_failure(frame: pd.DataFrame) -> bool:
     """Whether ``study check --strict`` fails: a run differs unexpectedly, or none was compared."""
     cls = frame["class"]

@@ -278,12 +278,14 @@ def cmd_check(args: argparse.Namespace) -> int:
     if not reference.is_file():
         raise InputError(str(reference), "no such runs.csv (give --reference PATH)")
     data = collect(args.name, _selection(args, required=False))
-    frame = reproduction.compare(data.df, reproduction.read_reference(str(reference)))
+    committed = reproduction.read_reference(str(reference))
+    frame = reproduction.compare(data.df, committed)
     out = USER_REPORTS / args.name
     out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(out / "reproduction.csv", index=False)
     for line in reproduction.summary(frame, str(reference)):
         print(line)
+    print(f"the committed runs were made on {reproduction.hosts(committed)}; these on {reproduction.hosts(data.df)}")
     print(f"per run: {out / 'reproduction.csv'}")
     return 1 if args.strict and reproduction.strict_failure(frame) else 0
 

@@ -2,10 +2,11 @@
 
 Every finished run appends one JSON line to ``<sweep_dir>/progress.jsonl`` under a file
 lock and reads back how many runs are done, so each worker can print the study's
-progress and an ETA. Until ``MEASURED_AFTER`` runs are done the ETA is the study's own
-estimate (``expected``: the plan's figure) less the time spent: the first runs of an install also
-compile the kernels, and an ETA from them alone says hours where minutes are left. Then it is
-the measured rate (wall time so far / runs done x runs left).
+progress and an ETA: the seconds a run takes, a blend of the study's own estimate
+(``expected``: the plan's figure, worth ``MEASURED_AFTER`` runs) and the measured rate (wall time so
+far / runs done), times the runs left. The blend moves smoothly from the plan to the measurement
+as runs finish (the first runs of an install also compile the kernels, and a rate from them alone
+says hours where minutes are left), and it is never 0 while a run is left.
 
 ``expected`` is what ``study run`` prints before it starts: for the quick profile, the quick runs
 an hour measured on a host of this one's kind (its vector ISA, ``spec.throughput``) and the
@@ -40,11 +41,18 @@ class Progress:
 
     @property
     def eta_s(self) -> float:
-        if self.done < min(MEASURED_AFTER, self.total) and self.expected_total_s > 0:
-            return max(self.expected_total_s - self.elapsed_s, 0.0)
+        """Seconds left: runs left x a blend of the plan's and the measured seconds a run (module docstring)."""
+        left = self.total - self.done
+        if left <= 0:
+            return 0.0
+        planned = self.expected_total_s / self.total if self.expected_total_s > 0 and self.total else math.nan
         if self.done == 0:
-            return float("nan")
-        return self.elapsed_s / self.done * (self.total - self.done)
+            return max(self.expected_total_s - self.elapsed_s, planned) if not math.isnan(planned) else math.nan
+        measured = self.elapsed_s / self.done
+        if math.isnan(planned):
+            return measured * left
+        per_run = (MEASURED_AFTER * planned + self.done * measured) / (MEASURED_AFTER + self.done)
+        return per_run * left
 
     def line(self) -> str:
         eta = "?" if math.isnan(self.eta_s) else fmt_seconds(self.eta_s)

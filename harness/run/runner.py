@@ -82,8 +82,12 @@ def warm_kernels(echo: Callable[[str], None]) -> None:
     every worker would compile them at once, silently, for minutes."""
     if warmup.kernels_cached():
         return
+    load, cores = os.getloadavg()[0], os.cpu_count() or 1
+    busy = max(1.0, (load + 1) / cores)  # the compile is one more process on a machine with `load` already
+    at_load = (f", about {fmt_duration(warmup.COLD_COMPILE_S * busy)} at this load (load average {load:.1f} on"
+               f" {cores} cores)") if busy > 1.1 else ""
     echo("compiling the CPU kernels (once per install or code change:"
-         f" ~{fmt_duration(warmup.COLD_COMPILE_S)} on an idle 2-core machine, longer under load) ...")
+         f" ~{fmt_duration(warmup.COLD_COMPILE_S)} on an idle 2-core machine{at_load}) ...")
     t0 = time.time()
     proc = subprocess.run(list(WARMUP), capture_output=True, text=True)
     if proc.returncode != 0:  # the runs will compile (or fail) themselves and say why
