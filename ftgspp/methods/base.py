@@ -23,6 +23,9 @@ What every method supplies:
   (``LR_KEYS``, default its own name in ``LearningRates``), which rates are multiplied by the
   scene extent (``EXTENT_SCALED``) and which decay over training (``DECAYING``);
   ``frozen()`` names parameters that are not optimised.
+- Optionally ``prepare_cpu(t, camera, sh_degree)``: a fused stage of its own for the ``cpu``
+  backend (time evaluation, colour and projection in Numba kernels, ``ftgspp.render.prepare``);
+  without one, every backend renders ``at_time`` through the generic PyTorch projection.
 
 What relocation copies (``ftgspp.strategy``): every parameter of a dead Gaussian is
 overwritten by its source's; the MCMC rule then rewrites ``opacities`` and ``scales``. So
@@ -42,6 +45,7 @@ import torch
 from torch import nn
 
 from ftgspp.config import InitConfig, LossConfig, ModelConfig
+from ftgspp.render.contract import CameraTensors, Projected
 
 REQUIRED = ("means", "quats", "scales", "opacities")  # the parameters the trainer itself touches
 
@@ -82,9 +86,6 @@ class DynamicGaussians(nn.Module):
     LR_KEYS: ClassVar[dict[str, str]] = {}  # parameter -> LearningRates field, where the names differ
     EXTENT_SCALED: ClassVar[tuple[str, ...]] = ("means",)  # learning rate x scene extent
     DECAYING: ClassVar[tuple[str, ...]] = ("means",)  # rate decays to lr.means_final_ratio x over training
-    # rendered by the cpu backend's fused FreeTimeGS node (ftgspp.render.prepare), which reads the
-    # parameters itself: a subclass of FreeTimeGaussians that changes what they mean sets it False
-    FUSED_CPU: ClassVar[bool] = False
 
     def __init__(self, params: dict[str, torch.Tensor], cfg: ModelConfig) -> None:
         super().__init__()
@@ -157,3 +158,15 @@ class DynamicGaussians(nn.Module):
     def frozen(self) -> set[str]:
         """Parameters left out of the optimiser."""
         return set()
+
+    # --- optional: a fused stage on the cpu backend ---------------------------------------
+    def prepare_cpu(self, t: float, camera: CameraTensors, sh_degree: int) -> tuple[Projected, GaussiansAt] | None:
+        """The Gaussians at time ``t`` (seconds) projected into ``camera`` and coloured as the generic
+        path colours them (SH of degree ``sh_degree`` along the viewing direction), by a fused stage
+        of the method's own, and the ``GaussiansAt`` they came from. ``view.render_view`` asks on
+        the ``cpu`` backend, for float32 parameters on the CPU; None (the default) renders
+        ``at_time`` through the generic path (``render.project`` and autograd). A method's kernels
+        evaluate its time formulas and hand each block of Gaussians to the shared colour and
+        projection (``ftgspp.render.prepare``); their results must agree with the generic path to
+        float32 rounding, gradients included."""
+        return None
