@@ -19,8 +19,9 @@ What every method supplies:
 - ``lifetimes(θ)``: how long ``sigmoid(o) φ(t)`` stays at or above θ, seconds.
 - ``velocities_at(t)``: d/dt of the positions (the motion diagnostics).
 - ``regularizers(g, weights)``: the method's loss terms besides the photometric loss.
-- Class attributes for the optimiser: which learning-rate key each parameter uses
-  (``LR_KEYS``, default its own name in ``LearningRates``), which rates are multiplied by the
+- Class attributes for the optimiser: the method's own learning rates (``LEARNING_RATES``, by
+  key; the rates every method shares are ``LearningRates``'), which key each parameter's rate
+  is under (``LR_KEYS``, default the parameter's name), which rates are multiplied by the
   scene extent (``EXTENT_SCALED``) and which decay over training (``DECAYING``);
   ``frozen()`` names parameters that are not optimised.
 - Optionally ``prepare_cpu(t, camera, sh_degree)``: a fused stage of its own for the ``cpu``
@@ -83,7 +84,11 @@ class GaussiansAt:
 class DynamicGaussians(nn.Module):
     """Per-Gaussian parameters of one dynamic method and their meaning at a time t."""
 
-    LR_KEYS: ClassVar[dict[str, str]] = {}  # parameter -> LearningRates field, where the names differ
+    # the method's own rates by key (a parameter's name, or the key LR_KEYS maps it to), before
+    # lr.scale; a LearningRates field of the same key, where there is one, is the option that sets
+    # it, else +lr.method.<key>=<rate> (ftgspp.train_state.learning_rates)
+    LEARNING_RATES: ClassVar[dict[str, float]] = {}
+    LR_KEYS: ClassVar[dict[str, str]] = {}  # parameter -> the key of its rate, where the names differ
     EXTENT_SCALED: ClassVar[tuple[str, ...]] = ("means",)  # learning rate x scene extent
     DECAYING: ClassVar[tuple[str, ...]] = ("means",)  # rate decays to lr.means_final_ratio x over training
 

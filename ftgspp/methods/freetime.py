@@ -37,6 +37,9 @@ class FreeTimeGaussians(DynamicGaussians):
     """Per-Gaussian parameters and their activations: FreeTimeGS, and FreeTimeGS++ with the
     bounded temporal scale and the gate (``ModelConfig``); the first ``DynamicGaussians``."""
 
+    # the paper's rates (docs/design.md §4); LearningRates repeats them under these keys (lr.durations=...)
+    LEARNING_RATES: ClassVar[dict[str, float]] = {"durations": 5e-3, "times": 1.6e-4, "velocities": 1.6e-3,
+                                                  "gates": 1e-3}  # fmt: skip
     EXTENT_SCALED: ClassVar[tuple[str, ...]] = ("means", "velocities")
     DECAYING: ClassVar[tuple[str, ...]] = ("means", "velocities")
 

@@ -39,6 +39,10 @@ INIT_LOG_TIME_SCALE = 0.0  # exp(0) = 1 s
 class SpacetimeGaussians(DynamicGaussians):
     """Temporal-RBF opacity, cubic motion and linear rotation around each Gaussian's own time."""
 
+    # the public code's rates: temporal centre and log temporal scale, cubic motion (x scene extent: its
+    # position rate x 0.5 x 3.5) and rotation speed; LearningRates repeats them under these keys (lr.motion=...)
+    LEARNING_RATES: ClassVar[dict[str, float]] = {"trbf_center": 1e-4, "trbf_scale": 0.03, "motion": 2.8e-4,
+                                                  "omega": 1e-4}  # fmt: skip
     LR_KEYS: ClassVar[dict[str, str]] = {"rgb": "sh0"}  # the colour's rate is the SH DC rate (2.5e-3, as there)
     EXTENT_SCALED: ClassVar[tuple[str, ...]] = ("means", "motion")
     DECAYING: ClassVar[tuple[str, ...]] = ("means",)
