@@ -1,12 +1,12 @@
 """The fused per-Gaussian stage of the ``cpu`` backend, for the methods that supply one.
 
-A method may render on the ``cpu`` backend through a fused stage of its own
-(its ``prepare_cpu``): one Numba forward kernel and one hand-written backward
-kernel that evaluate its Gaussians at time t, colour them by SH along the viewing direction and
-project them, where the generic path runs its ``at_time``, ``sh.eval_sh`` and
-``project.project`` as dozens of small PyTorch operations and their autograd bookkeeping. The
-method's kernels evaluate time; the colour, the projection and their chain rule are the shared
-block functions of ``prepare_kernels``. This module runs such a pair as one autograd node:
+A method may render on the ``cpu`` backend through a fused stage of its own (its
+``prepare_cpu``): one Numba forward kernel and one hand-written backward kernel that evaluate its
+Gaussians at time t, colour them by SH along the viewing direction and project them, where the
+generic path runs its ``at_time``, ``sh.eval_sh`` and ``project.project`` as dozens of small
+PyTorch operations and their autograd bookkeeping. The method's kernels evaluate time; the
+colour, the projection and their chain rule are the shared block functions of
+``prepare_kernels``. This module runs such a pair as one autograd node:
 
     kernels = FusedKernels(forward, backward)
     p = fused_prepare(kernels, [params[k] for k in NAMES], settings, camera)
