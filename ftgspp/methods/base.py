@@ -167,8 +167,8 @@ class DynamicGaussians(nn.Module):
     # --- optional: a fused stage on the cpu backend ---------------------------------------
     def prepare_cpu(self, t: float, camera: CameraTensors, sh_degree: int) -> tuple[Projected, GaussiansAt] | None:
         """The Gaussians at time ``t`` (seconds) projected into ``camera`` and coloured as the generic
-        path colours them (SH of degree ``sh_degree`` along the viewing direction), by a fused stage
-        of the method's own, and the ``GaussiansAt`` they came from. ``view.render_view`` asks on
+        path colours them (SH of degree ``sh_degree`` along the viewing direction, or the method's
+        RGB), by a fused stage of the method's own, and the ``GaussiansAt`` they came from. ``view.render_view`` asks on
         the ``cpu`` backend, for float32 parameters on the CPU; None (the default) renders
         ``at_time`` through the generic path (``render.project`` and autograd). A method's kernels
         evaluate its time formulas and hand each block of Gaussians to the shared colour and

@@ -32,7 +32,7 @@ from ftgspp.render.contract import EPS2D, CameraTensors
 from ftgspp.render.prepare import FusedKernels, Prepared, fused_prepare
 from ftgspp.render.prepare_kernels import (
     BACKWARD_ROWS, BLOCK, F0, F1, F_HALF, FORWARD_ROWS, ROW_GMX, ROW_GMY, ROW_GMZ, gaussian_row, opacity_row,
-    project_and_colour, project_and_colour_backward, sigmoid,
+    projection, projection_backward, sh_colour, sh_colour_backward, sigmoid,
 )  # fmt: skip
 from ftgspp.runtime.jit import JIT
 
@@ -109,8 +109,8 @@ def prepare_forward(
                 means[i, 2] + velocities[i, 2] * dt, quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3],
                 log_scales[i, 0], log_scales[i, 1], log_scales[i, 2],
             )  # fmt: skip
-        project_and_colour(lo, hi, f, view, cam, centre, sh_degree, sh0, shN, opac, depths, means_t, means2d, conics,
-                           colors, radii)  # fmt: skip
+        projection(lo, hi, f, view, cam, opac, depths, means_t, means2d, conics, radii)
+        sh_colour(lo, hi, f, centre, sh_degree, sh0, shN, colors)
     return means2d, conics, colors, opac, depths, radii, phis, means_t
 
 
@@ -172,8 +172,8 @@ def prepare_backward(
                 means[i, 2] + velocities[i, 2] * dt, quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3],
                 log_scales[i, 0], log_scales[i, 1], log_scales[i, 2],
             )  # fmt: skip
-        project_and_colour_backward(lo, hi, f, view, cam, centre, sh_degree, sh0, shN, radii, g_means2d, g_conics,
-                                    g_colors, g_depths, g_means_t, gr_ls, gr_quats, gr_sh0, gr_shN)  # fmt: skip
+        projection_backward(lo, hi, f, view, cam, radii, g_means2d, g_conics, g_depths, g_means_t, gr_ls, gr_quats)
+        sh_colour_backward(lo, hi, f, centre, sh_degree, sh0, shN, g_colors, gr_sh0, gr_shN)
         for i in range(lo, hi):
             b = i - lo
             dt, s, a, gv, phi = temporal[0, b], temporal[1, b], temporal[2, b], temporal[3, b], temporal[4, b]

@@ -2,11 +2,11 @@
 
 A method may render on the ``cpu`` backend through a fused stage of its own (its
 ``prepare_cpu``): one Numba forward kernel and one hand-written backward kernel that evaluate its
-Gaussians at time t, colour them by SH along the viewing direction and project them, where the
-generic path runs its ``at_time``, ``sh.eval_sh`` and ``project.project`` as dozens of small
-PyTorch operations and their autograd bookkeeping. The method's kernels evaluate time; the
-colour, the projection and their chain rule are the shared block functions of
-``prepare_kernels``. This module runs such a pair as one autograd node:
+Gaussians at time t, colour them (by SH along the viewing direction, or the method's own RGB) and
+project them, where the generic path runs its ``at_time``, ``sh.eval_sh`` and ``project.project``
+as dozens of small PyTorch operations and their autograd bookkeeping. The method's kernels
+evaluate time; the projection, the SH colour and their chain rule are the shared block functions
+of ``prepare_kernels``. This module runs such a pair as one autograd node:
 
     kernels = FusedKernels(forward, backward)
     p = fused_prepare(kernels, [params[k] for k in NAMES], settings, camera)
@@ -52,7 +52,7 @@ class Prepared(NamedTuple):
 
     means2d: Tensor  # [N, 2] pixels (zeros where culled)
     conics: Tensor  # [N, 3] upper triangle of the inverse 2D covariance (zeros where culled)
-    colors: Tensor  # [N, D] SH colours along the viewing directions
+    colors: Tensor  # [N, D] colours (SH along the viewing directions, or the method's RGB)
     opacities: Tensor  # [N] sigmoid(o) * phi(t)
     depths: Tensor  # [N] camera-space z of the centres
     radii: Tensor  # [N, 2] int32 pixel radius per axis, 0 = culled

@@ -4,11 +4,13 @@ projection, forward and backward, one block of Gaussians at a time.
 A method's fused kernel pair (``render.prepare``: ``FusedKernels``) evaluates its Gaussians at
 time t in its own loop, writes each one's centre, quaternion and log scales into the block's
 scratch rows (``gaussian_row``; in the forward pass also its opacity, ``opacity_row``), and
-hands the block to ``project_and_colour`` (forward) or ``project_and_colour_backward``
-(backward). Together they compute what the method's ``at_time``, ``sh.eval_sh`` (along the
-normalised direction from the camera centre) and ``project.project`` compute with dozens of
-PyTorch operations, in float32 and in the same order of operations as those modules, so that
-the outputs agree with them to float32 rounding:
+hands the block to ``projection`` (forward) or ``projection_backward`` (backward). A method
+whose colour is SH then hands it to ``sh_colour`` (forward) or ``sh_colour_backward``
+(backward, after the projection's); a method with view-independent RGB copies its colour and
+its cotangent itself. Together they compute what the method's ``at_time``, ``sh.eval_sh``
+(along the normalised direction from the camera centre) and ``project.project`` compute with
+dozens of PyTorch operations, in float32 and in the same order of operations as those modules,
+so that the outputs agree with them to float32 rounding:
 
     colour = max(sum_k Y_k(dir) sh_k + 0.5, 0)
     means2d, conics, depths, radii  as in ``project.py`` (culled Gaussians: zeros, radii 0;
@@ -16,18 +18,19 @@ the outputs agree with them to float32 rounding:
 
 The backward recomputes the forward values of each Gaussian and applies the chain rule by hand
 (the derivation is written next to each step), leaving the cotangent of each centre at time t
-in the rows ``ROW_GMX`` .. ``ROW_GMZ`` for the method's own chain rule through time. Each
+(the projection's and the SH colour's) in the rows ``ROW_GMX`` .. ``ROW_GMZ``, and that of its
+quaternion at time t in ``gr_quats``, for the method's own chain rule through time. Each
 Gaussian's gradients are computed by one thread with no reduction across Gaussians, so results
 are bitwise identical across runs and thread counts.
 
 Each block of ``BLOCK`` Gaussians goes through three loops: the library calls (exp, log) one
 Gaussian at a time (the method's loop), writing one 1D array per quantity into the block's own
 scratch rows; the projection (``_project_block``, and its chain rule in two loops), arithmetic
-only, which LLVM vectorises across Gaussians; the SH colour. Lanes never reorder the arithmetic
-(no fast-math), so every non-NaN result has the bits a scalar loop gives it, on every target. A
-NaN result is NaN in the same places, but its payload and sign bits depend on the instructions
-LLVM chose (vector lanes or the scalar remainder, a fresh compile or a cached one), as they
-already did between targets: the guarantee leaves them out.
+only, which LLVM vectorises across Gaussians; the SH colour, if any. Lanes never reorder the
+arithmetic (no fast-math), so every non-NaN result has the bits a scalar loop gives it, on
+every target. A NaN result is NaN in the same places, but its payload and sign bits depend on
+the instructions LLVM chose (vector lanes or the scalar remainder, a fresh compile or a cached
+one), as they already did between targets: the guarantee leaves them out.
 
 Float literals are ``np.float32`` constants: a Python float would promote the maths to float64.
 """
@@ -339,27 +342,35 @@ def _project_block(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_rat
 
 
 @njit(**JIT)
-def project_and_colour(lo, hi, f, view, cam, centre, sh_degree, sh0, shN, opac, depths, means_t, means2d, conics,
-                       colors, radii):  # fmt: skip
-    """The forward pass of the block of Gaussians lo..hi-1, whose rows 0..10 of ``f``
+def projection(lo, hi, f, view, cam, opac, depths, means_t, means2d, conics, radii):
+    """The forward projection of the block of Gaussians lo..hi-1, whose rows 0..10 of ``f``
     (``FORWARD_ROWS`` x (hi - lo)) and opacities ``opac[lo:hi]`` the method has written: their
-    depths, means2d, conics and radii (``_project_block``), their centres at time t
-    (``means_t``) and their SH colours of degree ``sh_degree`` along the viewing direction from
-    ``centre`` (``colors``), into rows lo..hi-1 of those outputs."""
+    depths, means2d, conics and radii (``_project_block``) and their centres at time t
+    (``means_t``), into rows lo..hi-1 of those outputs."""
     mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, m2x, m2y, con0, con1, con2 = (
         f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15]
     )
-    n_dim = sh0.shape[2]
     rad = np.empty((2, hi - lo), np.int32)
     _project_block(hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac[lo:hi],
                    depths[lo:hi], m2x, m2y, con0, con1, con2, rad[0], rad[1])  # fmt: skip
-    basis = np.empty(16, np.float32)
     for i in range(lo, hi):
         b = i - lo
         means_t[i, 0], means_t[i, 1], means_t[i, 2] = mx[b], my[b], mz[b]
         means2d[i, 0], means2d[i, 1] = m2x[b], m2y[b]
         conics[i, 0], conics[i, 1], conics[i, 2] = con0[b], con1[b], con2[b]
         radii[i, 0], radii[i, 1] = rad[0, b], rad[1, b]
+
+
+@njit(**JIT)
+def sh_colour(lo, hi, f, centre, sh_degree, sh0, shN, colors):
+    """The SH colours of degree ``sh_degree`` of the block of Gaussians lo..hi-1 (rows 0..2 of
+    ``f``: their centres at time t) along the viewing direction from ``centre``, into rows
+    lo..hi-1 of ``colors``. For a method whose colour is SH; one with RGB writes its own."""
+    mx, my, mz = f[0], f[1], f[2]
+    n_dim = sh0.shape[2]
+    basis = np.empty(16, np.float32)
+    for i in range(lo, hi):
+        b = i - lo
         # colour along the (twice normalised, as view.py then sh.py do) viewing direction
         d1x, d1y, d1z, _ = _normalise(mx[b] - centre[0], my[b] - centre[1], mz[b] - centre[2], F_EPS_DIR)
         dx, dy, dz, _ = _normalise(d1x, d1y, d1z, F_EPS_SH)
@@ -492,14 +503,13 @@ def _shape_block_backward(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, 
 
 
 @njit(**JIT)
-def project_and_colour_backward(lo, hi, f, view, cam, centre, sh_degree, sh0, shN, radii, g_means2d, g_conics,
-                                g_colors, g_depths, g_means_t, gr_ls, gr_quats, gr_sh0, gr_shN):  # fmt: skip
-    """The backward pass of the block of Gaussians lo..hi-1, whose rows 0..9 of ``f``
+def projection_backward(lo, hi, f, view, cam, radii, g_means2d, g_conics, g_depths, g_means_t, gr_ls, gr_quats):
+    """The backward projection of the block of Gaussians lo..hi-1, whose rows 0..9 of ``f``
     (``BACKWARD_ROWS`` x (hi - lo)) the method has written as in the forward pass: the gradients
-    of their log scales, quaternions and SH coefficients (rows lo..hi-1 of ``gr_ls``,
-    ``gr_quats``, ``gr_sh0``, ``gr_shN``), and in rows ``ROW_GMX`` .. ``ROW_GMZ`` the cotangent of
-    each centre at time t: the ``means_t`` output's (``g_means_t``), the projection's and the
-    colour's. ``radii`` and the cotangents are the whole forward outputs' arrays."""
+    of their log scales and quaternions (rows lo..hi-1 of ``gr_ls``, ``gr_quats``), and in rows
+    ``ROW_GMX`` .. ``ROW_GMZ`` the cotangent of each centre at time t: the ``means_t`` output's
+    (``g_means_t``) and the projection's (``sh_colour_backward`` adds the colour's). ``radii``
+    and the cotangents are the whole forward outputs' arrays."""
     mx, my, mz, qw, qx, qy, qz, s0, s1, s2, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_mtx, g_mty, g_mtz = (
         f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15],
         f[16], f[17],
@@ -507,8 +517,6 @@ def project_and_colour_backward(lo, hi, f, view, cam, centre, sh_degree, sh0, sh
     gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz, g_mx, g_my, g_mz = (
         f[18], f[19], f[20], f[21], f[22], f[23], f[24], f[25], f[26], f[27]
     )
-    n_dim = sh0.shape[2]
-    n_bases = (sh_degree + 1) * (sh_degree + 1)
     radii_x = np.empty(hi - lo, np.int32)
     for i in range(lo, hi):  # the cotangents' rows
         b = i - lo
@@ -525,15 +533,27 @@ def project_and_colour_backward(lo, hi, f, view, cam, centre, sh_degree, sh0, sh
         hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
         g_dep, gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz,
     )  # fmt: skip
-    basis = np.empty(16, np.float32)
-    g_basis = np.empty(16, np.float32)
     for i in range(lo, hi):
         b = i - lo
         gr_ls[i, 0], gr_ls[i, 1], gr_ls[i, 2] = gr_ls0[b], gr_ls1[b], gr_ls2[b]
         gr_quats[i, 0], gr_quats[i, 1], gr_quats[i, 2], gr_quats[i, 3] = gr_qw[b], gr_qx[b], gr_qy[b], gr_qz[b]
+
+
+@njit(**JIT)
+def sh_colour_backward(lo, hi, f, centre, sh_degree, sh0, shN, g_colors, gr_sh0, gr_shN):
+    """The backward of ``sh_colour`` for the block of Gaussians lo..hi-1 (after
+    ``projection_backward``): the gradients of their SH coefficients (rows lo..hi-1 of
+    ``gr_sh0``, ``gr_shN``), and the colour's share of the cotangent of each centre at time t
+    added to rows ``ROW_GMX`` .. ``ROW_GMZ`` of ``f``."""
+    mx, my, mz, g_mx, g_my, g_mz = f[0], f[1], f[2], f[ROW_GMX], f[ROW_GMY], f[ROW_GMZ]
+    n_dim = sh0.shape[2]
+    n_bases = (sh_degree + 1) * (sh_degree + 1)
+    basis = np.empty(16, np.float32)
+    g_basis = np.empty(16, np.float32)
+    for i in range(lo, hi):
+        b = i - lo
         for k in range(16):
             g_basis[k] = F0
-        # --- SH colour
         d1x, d1y, d1z, n1 = _normalise(mx[b] - centre[0], my[b] - centre[1], mz[b] - centre[2], F_EPS_DIR)
         dx, dy, dz, n2 = _normalise(d1x, d1y, d1z, F_EPS_SH)
         _basis(sh_degree, dx, dy, dz, basis)

@@ -9,12 +9,9 @@ point, so every branch of the hand-written backward is exercised.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 import torch
-from scipy.spatial.transform import Rotation
 
 from ftgspp.config import ModelConfig
 from ftgspp.data.scene import Camera
@@ -24,20 +21,14 @@ from ftgspp.render.contract import CameraTensors
 from ftgspp.render.project import project
 from ftgspp.render.sh import eval_sh
 from ftgspp.view import camera_tensors, render_view
+from tests.methods.awkward_scene import H, W, awkward_gaussians, make_camera
 from tests.numba_threads import under_thread_counts
 
-W, H = 53, 41
 OUTPUTS = ("means2d", "conics", "colors", "opacities", "depths", "temporal", "means")
 
 
-def make_camera() -> Camera:
-    R = Rotation.from_euler("xyz", [0.15, -0.25, 0.05]).as_matrix()
-    K = np.array([[45.0, 0.0, 24.0], [0.0, 47.0, 22.5], [0.0, 0.0, 1.0]])
-    return Camera("cam", K, R, np.array([0.2, -0.1, 0.3]), W, H)
-
-
 def make_model(seed: int, cfg: ModelConfig, n_sh: int = 16) -> FreeTimeGaussians:
-    """Gaussians of every awkward kind, placed in the camera frame of ``make_camera``."""
+    """Gaussians of every awkward kind (``awkward_scene``), placed in the camera frame of ``make_camera``."""
     g = torch.Generator().manual_seed(seed)
 
     def rand(*shape):
@@ -46,31 +37,8 @@ def make_model(seed: int, cfg: ModelConfig, n_sh: int = 16) -> FreeTimeGaussians
     def randn(*shape):
         return torch.randn(*shape, generator=g)
 
-    tan = torch.tensor([W / 2 / 45.0, H / 2 / 47.0])
-    parts = []
-
-    def add(n, uv, z, log_scale):  # uv in units of the half field of view, z camera depth
-        xy = uv * tan * z[:, None]
-        parts.append((torch.cat([xy, z[:, None]], -1), log_scale))
-
-    n = 60  # ordinary
-    add(n, rand(n, 2) * 2.2 - 1.1, 2 + 4 * rand(n), math.log(0.03) + rand(n, 3))
-    n = 8  # behind the camera or inside the near plane
-    add(n, rand(n, 2) * 2 - 1, -1 + 1.005 * rand(n), math.log(0.05) + rand(n, 3))
-    n = 8  # off-screen, beyond the tangent clamp (some still reach into the image)
-    add(n, torch.sign(randn(n, 2)) * (1.4 + 2 * rand(n, 2)), 2 + 3 * rand(n), math.log(0.3) + 2 * rand(n, 3))
-    n = 4  # huge
-    add(n, rand(n, 2) * 2 - 1, 3 + rand(n), math.log(2.0) + rand(n, 3))
-    n = 6  # tiny: the low-pass dominates
-    add(n, rand(n, 2) * 2 - 1, 2 + 3 * rand(n), math.log(1e-4) + rand(n, 3))
-    n = 6  # needles: one long axis, two very thin ones
-    ls = torch.stack([math.log(0.5) + rand(n), math.log(1e-3) + rand(n), math.log(1e-3) + rand(n)], -1)
-    add(n, rand(n, 2) * 2 - 1, 2 + 3 * rand(n), ls)
-    p_cam = torch.cat([p for p, _ in parts]).double()
-    log_scales = torch.cat([s for _, s in parts])
-    total = p_cam.shape[0]
-    cam = make_camera()
-    world = ((p_cam - torch.from_numpy(cam.T)) @ torch.from_numpy(cam.R)).float()  # R^T (p - T)
+    world, log_scales = awkward_gaussians(g)
+    total = world.shape[0]
     times = rand(total)
     velocities = 0.3 * randn(total, 3)
     t_eval = 0.4
