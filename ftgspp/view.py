@@ -70,4 +70,4 @@ def _rasterize_cpu(
         means2d.retain_grad()
     image, alpha, depth = rasterize(means2d, p.conics, p.colors if colors is None else colors, p.opacities, p.depths,
                                     p.radii, cam.width, cam.height, background)  # fmt: skip
-    return RenderOutput(image, alpha, depth, means2d, p.radii, p.depths)
+    return RenderOutput(image, alpha, depth, means2d, p.radii, p.depths, stage="fused")

@@ -173,5 +173,6 @@ class DynamicGaussians(nn.Module):
         ``at_time`` through the generic path (``render.project`` and autograd). A method's kernels
         evaluate its time formulas and hand each block of Gaussians to the shared colour and
         projection (``ftgspp.render.prepare``); their results must agree with the generic path to
-        float32 rounding, gradients included."""
+        float32 rounding, gradients included (not bit for bit: the trainer records which path
+        rendered a run, its param ``render_stage``)."""
         return None

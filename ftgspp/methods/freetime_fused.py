@@ -31,8 +31,8 @@ from torch import Tensor
 from ftgspp.render.contract import EPS2D, CameraTensors
 from ftgspp.render.prepare import FusedKernels, Prepared, fused_prepare
 from ftgspp.render.prepare_kernels import (
-    BACKWARD_ROWS, BLOCK, F0, F1, F_HALF, FORWARD_ROWS, ROW_GMX, ROW_GMY, ROW_GMZ, gaussian_row, opacity_row,
-    projection, projection_backward, sh_colour, sh_colour_backward, sigmoid,
+    BACKWARD_ROWS, BLOCK, F0, F1, F_HALF, FORWARD_ROWS, ROW_GMX, ROW_GMY, ROW_GMZ, block_rows, forward_outputs,
+    gaussian_row, opacity_row, projection, projection_backward, sh_colour, sh_colour_backward, sigmoid,
 )  # fmt: skip
 from ftgspp.runtime.jit import JIT
 
@@ -84,18 +84,9 @@ def prepare_forward(
     radii [N, 2] int32, phi [N], means_t [N, 3]), all float32 but radii."""
     n = means.shape[0]
     n_dim = sh0.shape[2]
-    means2d = np.empty((n, 2), np.float32)
-    conics = np.empty((n, 3), np.float32)
-    colors = np.empty((n, n_dim), np.float32)
-    opac = np.empty(n, np.float32)
-    depths = np.empty(n, np.float32)
-    radii = np.empty((n, 2), np.int32)
-    phis = np.empty(n, np.float32)
-    means_t = np.empty((n, 3), np.float32)
+    means2d, conics, colors, opac, depths, radii, phis, means_t = forward_outputs(n, n_dim)
     for blk in prange((n + BLOCK - 1) // BLOCK):
-        lo = blk * BLOCK
-        hi = min(n, lo + BLOCK)
-        f = np.empty((FORWARD_ROWS, hi - lo), np.float32)  # the block's rows (prepare_kernels)
+        lo, hi, f = block_rows(blk, n, FORWARD_ROWS)  # the block's Gaussians and rows (prepare_kernels)
         for i in range(lo, hi):  # the library calls (exp, log), one Gaussian at a time
             dt, s, a, gv, phi = _temporal(
                 t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
@@ -157,10 +148,8 @@ def prepare_backward(
     gr_sh0 = np.empty(sh0.shape, np.float32)
     gr_shN = np.zeros(shN.shape, np.float32)
     for blk in prange((n + BLOCK - 1) // BLOCK):
-        lo = blk * BLOCK
-        hi = min(n, lo + BLOCK)
+        lo, hi, f = block_rows(blk, n, BACKWARD_ROWS)  # the block's Gaussians and rows (prepare_kernels)
         temporal = np.empty((5, hi - lo), np.float32)  # the forward's (dt, s, a, gate value, phi)
-        f = np.empty((BACKWARD_ROWS, hi - lo), np.float32)  # the block's rows (prepare_kernels)
         for i in range(lo, hi):  # the library calls (exp), one Gaussian at a time
             b = i - lo
             dt, s, a, gv, phi = _temporal(

@@ -67,6 +67,9 @@ class RenderOutput:
     means2d: torch.Tensor  # [N, 2] projected centres in pixels; .grad set after backward
     radii: torch.Tensor  # [N, 2] integer pixel radius per axis (x, y), 0 = culled
     depths: torch.Tensor  # [N] camera-space depth of each centre
+    # how the Gaussians were evaluated and projected: "generic" (at_time, render.project) or "fused"
+    # (the method's fused cpu stage, render.prepare); the trainer records it with the run
+    stage: str = "generic"
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,11 @@
 """Numba kernels of the fused per-Gaussian stage, the parts every method shares: SH colour and EWA
 projection, forward and backward, one block of Gaussians at a time.
 
-A method's fused kernel pair (``render.prepare``: ``FusedKernels``) evaluates its Gaussians at
-time t in its own loop, writes each one's centre, quaternion and log scales into the block's
-scratch rows (``gaussian_row``; in the forward pass also its opacity, ``opacity_row``), and
+A method's fused kernel pair (``render.prepare``: ``FusedKernels``) allocates the forward's
+outputs (``forward_outputs``), runs over blocks in parallel (``block_rows``: a block's Gaussians
+and scratch rows), evaluates each block's Gaussians at time t in its own loop, writes each one's
+centre, quaternion and log scales into the block's scratch rows (``gaussian_row``; in the
+forward pass also its opacity, ``opacity_row``), and
 hands the block to ``projection`` (forward) or ``projection_backward`` (backward). A method
 whose colour is SH then hands it to ``sh_colour`` (forward) or ``sh_colour_backward``
 (backward, after the projection's); a method with view-independent RGB copies its colour and
@@ -290,6 +292,25 @@ def gaussian_row(f, b, x, y, z, qw, qx, qy, qz, ls0, ls1, ls2):
 def opacity_row(f, b, o):
     """Entry b of a forward block's ``ROW_LOG_RATIO`` from the Gaussian's opacity o at time t."""
     f[ROW_LOG_RATIO, b] = np.float32(math.log(o / F_ALPHA_MIN))
+
+
+@njit(inline="always", **JIT)
+def block_rows(blk, n, rows):
+    """(lo, hi, f): the Gaussians lo..hi-1 of parallel work item ``blk`` of n, and their scratch rows
+    ``f`` (float32 [rows, hi - lo], uninitialised: ``FORWARD_ROWS`` or ``BACKWARD_ROWS``)."""
+    lo = blk * BLOCK
+    hi = min(n, lo + BLOCK)
+    return lo, hi, np.empty((rows, hi - lo), np.float32)
+
+
+@njit(**JIT)
+def forward_outputs(n, n_dim):
+    """A forward kernel's outputs for n Gaussians with n_dim colour channels, uninitialised (each
+    block writes its rows): means2d [n, 2], conics [n, 3], colors [n, n_dim], opacities [n],
+    depths [n], radii [n, 2] int32, phi [n], means_t [n, 3]."""
+    return (np.empty((n, 2), np.float32), np.empty((n, 3), np.float32), np.empty((n, n_dim), np.float32),
+            np.empty(n, np.float32), np.empty(n, np.float32), np.empty((n, 2), np.int32), np.empty(n, np.float32),
+            np.empty((n, 3), np.float32))  # fmt: skip
 
 
 @njit(inline="always", **JIT)

@@ -12,6 +12,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from ftgspp.data.scene import Camera
+from ftgspp.view import render_view
 
 W, H = 53, 41
 
@@ -57,3 +58,21 @@ def awkward_gaussians(g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     cam = make_camera()
     world = ((p_cam - torch.from_numpy(cam.T)) @ torch.from_numpy(cam.R)).float()  # R^T (p - T)
     return world, log_scales
+
+
+def render_both_backends(make_model, t: float, sh_degree: int) -> dict[str, tuple]:
+    """``{backend: (render, Gaussians at t, gradients)}`` for ``cpu`` and ``reference``: a fresh
+    ``make_model()`` each, rendered from ``make_camera()`` at ``t`` and differentiated through a loss
+    of image, depth, alpha and the temporal weight; the gradients are every parameter's and the
+    screen-space one (``means2d``) the relocation statistics read."""
+    cam = make_camera()
+    results = {}
+    for backend in ("cpu", "reference"):
+        model = make_model()
+        out, g = render_view(model, cam, t, sh_degree, background=torch.tensor([0.2, 0.5, 0.7]), backend=backend)
+        weight = torch.linspace(0, 1, W).view(1, -1, 1)
+        loss = (out.image * weight).sum() + out.depth.mean() + out.alpha.sum() + g.temporal.sum()
+        loss.backward()
+        grads = {k: p.grad for k, p in model.params.items()} | {"means2d": out.means2d.grad}
+        results[backend] = (out, g, grads)
+    return results

@@ -21,7 +21,7 @@ from ftgspp.render.contract import CameraTensors
 from ftgspp.render.project import project
 from ftgspp.render.sh import eval_sh
 from ftgspp.view import camera_tensors, render_view
-from tests.methods.awkward_scene import H, W, awkward_gaussians, make_camera
+from tests.methods.awkward_scene import H, W, awkward_gaussians, make_camera, render_both_backends
 from tests.numba_threads import under_thread_counts
 
 OUTPUTS = ("means2d", "conics", "colors", "opacities", "depths", "temporal", "means")
@@ -167,16 +167,8 @@ def test_bitwise_deterministic_across_runs_and_thread_counts() -> None:
 
 def test_render_view_cpu_matches_reference_end_to_end() -> None:
     """Fused node + Numba rasterizer vs the reference backend: image, every gradient, means2d.grad."""
-    cam = make_camera()
-    results = {}
-    for backend in ("cpu", "reference"):
-        model = make_model(7, CONFIGS[2])
-        out, g = render_view(model, cam, 0.4, 3, background=torch.tensor([0.2, 0.5, 0.7]), backend=backend)
-        weight = torch.linspace(0, 1, W).view(1, -1, 1)
-        loss = (out.image * weight).sum() + out.depth.mean() + out.alpha.sum() + g.temporal.sum()
-        loss.backward()
-        grads = {k: p.grad for k, p in model.params.items()} | {"means2d": out.means2d.grad}
-        results[backend] = (out, g, grads)
+    results = render_both_backends(lambda: make_model(7, CONFIGS[2]), 0.4, 3)
+    assert results["cpu"][0].stage == "fused" and results["reference"][0].stage == "generic"
     (out, g, grads), (ref, ref_g, ref_grads) = results["cpu"], results["reference"]
     torch.testing.assert_close(out.image, ref.image, rtol=0, atol=1e-5)
     torch.testing.assert_close(out.alpha, ref.alpha, rtol=0, atol=1e-5)
