@@ -34,6 +34,7 @@ When the tracking store has none of the reported runs, they come from the commit
 from __future__ import annotations
 
 import hashlib
+import shutil
 import time
 from pathlib import Path
 from typing import Callable
@@ -257,6 +258,8 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
     if main.summaries:
         pd.concat(main.summaries.values(), ignore_index=True).to_csv(out / "summary.csv", index=False)
     figures = sections.figures(data, out) + xt_figures.figures(data, out)
+    if data.recorded is None:  # from the store: the diagnostics are this report's alone (none stale);
+        shutil.rmtree(out / "diagnostics", ignore_errors=True)  # from committed runs they are the source
     diags = sections.diagnostics(data, out)
     (out / "index.md").write_text(study_page(data, out, main, extra, figures, diags))
     (out / FINGERPRINT).write_text(stamp + "\n")
