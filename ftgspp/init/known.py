@@ -11,12 +11,15 @@ perturbation is fixed and stated here (seeded by the init seed):
 - scale: isotropic, the mean of its three true scales (``spacing`` = s / ``init.scale_factor``,
   so that the model's initial scale, ``init.scale_factor`` × spacing, is s);
 - rotation, opacity and lifetime: the ordinary initialisation's (identity, ``init.opacity``,
-  ``init.duration``; a lifetime that covers the clip needs ``init.duration`` of about its length).
+  ``init.duration``; a lifetime that covers the clip needs ``init.duration`` of about its length;
+  ``study budget --control`` sets 1 s and the true opacities' mean, 0.85: harness/cli/budget.py).
 
-``initialize`` fits the K points to the budget as it fits matched points (a random subset, or
-jittered copies), so a budget of K starts from every true Gaussian once.
+``init.random_points`` is not used.
 
-    ftgspp train data.path=data/synth/budget_known_size init.matcher=known init.duration=1 budget=500
+``ftgspp.init.points.initialize`` fits the K points to the budget as it fits matched points (a
+random subset, or jittered copies), so a budget of K starts from every true Gaussian once.
+
+    ftgspp train data.path=data/synth/budget_known_size init.matcher=known init.duration=1 init.opacity=0.85 budget=500
 """
 
 from __future__ import annotations
@@ -26,8 +29,6 @@ import numpy as np
 from ftgspp.config import InitConfig
 from ftgspp.data.scene import Scene
 from ftgspp.errors import InputError
-from ftgspp.init.points import InitPoints, _fit_budget
-from ftgspp.init.quality import init_stats
 
 TRUTH_FILE = "known_size.npz"
 POSITION_JITTER = 0.5  # centre offsets' SD, in units of the Gaussian's own mean scale
@@ -36,7 +37,8 @@ COLOUR_JITTER = 0.05  # colour offsets' SD (RGB in [0, 1])
 
 def true_points(scene: Scene, cfg: InitConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """The scene's true Gaussians as initial points, perturbed (module docstring): ``means``,
-    ``colors`` ``[K, 3]``, ``times`` ``[K]``, ``velocities`` ``[K, 3]``, ``spacing`` ``[K]``, float32."""
+    ``colors`` ``[K, 3]``, ``times`` ``[K]``, ``velocities`` ``[K, 3]``, ``spacing`` ``[K]``, float32,
+    and ``keyframe`` ``[K]`` (all 0: one set at the clip's middle), the fields of ``InitPoints``."""
     path = scene.root / TRUTH_FILE
     if not path.is_file():
         raise InputError("init.matcher", f"'known' needs the true Gaussians in {path} (a scene of known size,"
@@ -52,14 +54,6 @@ def true_points(scene: Scene, cfg: InitConfig, rng: np.random.Generator) -> dict
         "times": np.full(k, float(truth["t_mid"]), dtype=np.float32),
         "velocities": truth["velocities"].astype(np.float32),
         "spacing": (scale / cfg.scale_factor).astype(np.float32),
+        "keyframe": np.zeros(k, dtype=np.int64),
     }
 
-
-def known_points(scene: Scene, cfg: InitConfig, budget: int, rng: np.random.Generator) -> InitPoints:
-    """Exactly ``budget`` initial points from the true ones (``true_points``), fitted to the budget
-    as ``initialize`` fits matched points; ``stats`` as a one-keyframe matcher's."""
-    truth = true_points(scene, cfg, rng)
-    k = len(truth["means"])
-    pts = _fit_budget(InitPoints(**truth, keyframe=np.zeros(k, dtype=np.int64)), budget, rng)
-    pts.stats = init_stats([k], budget, cfg.matcher)
-    return pts

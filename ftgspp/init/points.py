@@ -3,8 +3,7 @@
 For every keyframe (every ``cfg.keyframe_stride``-th loaded frame) and every training camera
 (the held-out test cameras are never read), with ``init.matcher=sift`` (``dense``: the paper's
 dense matching, ftgspp/init/dense.py, unless ``init.dense_check`` does not trust its points on this
-scene: then these SIFT steps, and the run's ``init_dense_fallback`` is 1; ``known``: a scene of known
-size's true Gaussians, perturbed, ftgspp/init/known.py, fitted to the budget as below):
+scene: then these SIFT steps, and the run's ``init_dense_fallback`` is 1):
 
 1. SIFT features (``cv2.SIFT_create(nfeatures=cfg.max_features)``).
 2. Each view is matched to its ``cfg.neighbor_cams`` nearest training cameras by centre
@@ -301,10 +300,12 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
         raise InputError("init.random_points", f"must be in [0, budget), got {n_random} with budget {budget}")
     rng = np.random.default_rng(seed)
     check_velocity_mode(cfg)  # fail before the expensive matching
-    if cfg.matcher == "known":  # the control: the scene's true Gaussians, perturbed
-        from ftgspp.init.known import known_points
+    if cfg.matcher == "known":  # the control: a known-size scene's true Gaussians, perturbed (ftgspp/init/known.py)
+        from ftgspp.init.known import true_points
 
-        return known_points(scene, cfg, budget, rng)
+        pts = _fit_budget(truth := InitPoints(**true_points(scene, cfg, rng)), budget, rng)  # fitted as matched points
+        pts.stats = init_stats([len(truth)], budget, cfg.matcher)
+        return pts
     near, far = depth_range(scene, cfg)
     kfs = keyframes(scene, cfg)
     kf_times = [float(scene.times[f]) for f in kfs]
