@@ -14,12 +14,13 @@ anything but the blobs. A budget of ``k`` can in principle redraw every frame ex
 
 Noise-free (``noise_sd: 0``, the default and the scene of the committed runs) the scene has no
 PSNR ceiling: a model that fits it better keeps gaining, so a saturation rule need never stop
-(DESIGN.md §11). With ``noise_sd: σ`` every pixel and channel of every camera gets N(0, σ²) in
-8-bit units before the 8-bit rounding (clipped to [0, 255]; seeded by ``(seed, NOISE_STREAM,
-camera index)``, apart from the Gaussians' stream), so a perfect model's held-out PSNR is about
-20·log10(255/σ) (σ = 2: ≈ 42 dB; higher where the black background clips the noise) —
-``known_size.json`` records the value measured on the held-out camera (``noise_floor_psnr``).
-The study budget's known-size preset uses σ = 2 (``cli.budget.NOISE_SD``).
+(the committed search, reports/budget/budget_known_size, kept doubling to 16,000). With
+``noise_sd: σ`` every pixel and channel of every camera gets N(0, σ²) in 8-bit units before the
+8-bit rounding (clipped to [0, 255]; seeded by ``(seed, NOISE_STREAM, camera index)``, apart from
+the Gaussians' stream), so a perfect model's held-out PSNR is about 20·log10(255/σ) (σ = 2: ≈ 42
+dB; higher where the black background clips the noise) — ``known_size.json`` records the value
+measured on the held-out camera (``noise_floor_psnr``). ``study budget --preset known_size`` uses
+σ = 2 (``cli.budget.NOISE_SD``).
 
 A study scene names it as a synthetic preset (``synth: {preset: known_size, k: 500}``; its
 arguments and their checks are ``harness.spec.known_scene``, and ``run.scenes`` dispatches it here); ``study budget --preset known_size`` searches it. The true
