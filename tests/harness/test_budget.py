@@ -167,3 +167,28 @@ def test_the_known_size_preset_is_noisy_and_the_noise_free_scene_keeps_its_name(
     assert synthetic_scene("static").synth == {"preset": "static", "seed": 0, "layout": "dynerf"}
     with pytest.raises(InputError, match="--noise-sd"):
         synthetic_scene("static", noise_sd=2)
+
+
+def test_the_command_line_names_the_noise_and_refuses_bad_arguments(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                    capsys: pytest.CaptureFixture) -> None:
+    from harness.cli import budget as cli_budget
+    from harness.cli.study import main
+
+    asked = {}
+
+    def fake_search(scene, **kw):
+        asked.update(kw, scene=scene)
+        found = BudgetSearch(scene.name, kw["sesoi"] or SESOI)
+        return find(found, curve_measure(found, saturating_curve), kw["start"], kw["max_budget"])
+
+    monkeypatch.setattr(cli_budget, "search", fake_search)
+    assert main(["budget", "--preset", "known_size", "--control", "--out", str(tmp_path)]) == 0
+    assert asked["scene"].name == "budget_known_size_noise2" and asked["control"] == 500  # K of the preset
+    md = (tmp_path / "budget_known_size_noise2" / "budget.md").read_text()
+    assert "`study budget --preset known_size --noise-sd 2 --control --start 500" in md and "--sesoi 0.2" in md
+    assert "Smallest sufficient budget" in capsys.readouterr().out
+    for bad in (["--control"], ["--noise-sd", "-1"], ["--sesoi", "0"]):
+        preset = "static" if bad == ["--control"] else "known_size"
+        with pytest.raises(SystemExit) as stop:
+            main(["budget", "--preset", preset, *bad, "--out", str(tmp_path)])
+        assert stop.value.code == 2
