@@ -134,7 +134,8 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
         sa = aggregate.speed_accuracy(df)
         chosen = aggregate.smallest_within(sa)
         if chosen is not None and sa.budget.nunique() > 1:  # a budget sweep (not e.g. a learning-rate one)
-            lines += [f"**Smallest budget within 0.1 dB of the best:** `{chosen['variant']}` — budget"
+            lines += [f"**Smallest budget within {aggregate.size_tolerance():g} dB (the SESOI) of the best:**"
+                      f" `{chosen['variant']}` — budget"
                       f" {int(chosen['budget'])} Gaussians, {int(chosen['iterations'])} iterations,"
                       f" PSNR {chosen['mean']:.2f} dB, {chosen['train_seconds']:.1f} s of training.", ""]
     if figures:
