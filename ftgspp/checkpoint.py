@@ -78,8 +78,8 @@ def load_colour_correction(run_dir: str | Path, cfg: TrainConfig, n_cameras: int
         matrices = torch.from_numpy(np.load(run / COLOR_MATRICES)).to(device, torch.float32)  # [C, 3, 3]
         biases = torch.from_numpy(np.load(run / COLOR_BIAS)).to(device, torch.float32)  # [C, 3]
         if matrices.shape != cc.delta.shape or biases.shape != cc.bias.shape:
-            raise InputError(run / COLOR_MATRICES, f"transforms of {matrices.shape[0]} cameras; the scene trains"
-                             f" {n_cameras}")
+            raise InputError(run / COLOR_MATRICES, f"transforms of {matrices.shape[0]} cameras, but the scene has"
+                             f" {n_cameras} training cameras")
         with torch.no_grad():  # saved: the transforms in use, I + ΔM and b (a no-op in either gauge)
             cc.delta.copy_(matrices - torch.eye(3, device=device))
             cc.bias.copy_(biases)
