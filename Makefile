@@ -7,7 +7,7 @@ SCENE  ?= data/synth/studio
 STAMP  := $(VENV)/.installed
 
 .PHONY: install demo train-quick test weights bench clean reports
-.PHONY: server test-cluster gpu-check
+.PHONY: server test-cluster gpu-check gpu-kit
 
 # torch 2.13.0 (CPU) goes in first, alone, so nothing later pulls a multi-GB CUDA build.
 $(STAMP): pyproject.toml
@@ -79,6 +79,15 @@ test-cluster: install
 gpu-check: install weights
 	$(PIP) install -q -e '.[cuda,test]'
 	$(VENV)/bin/ftgspp check-gpu
+
+# The offline kit for a GPU machine without network (the device tool's; docs/gpu.md): wheels for
+# CPython 3.12 manylinux x86-64 of what `scripts/gpu_check.sh` needs beyond that machine's own
+# packages (gsplat 1.5.3, Hydra, OmegaConf, antlr4, diptest) and the LPIPS-Alex weights, in $(KIT)/
+# (git-ignored), checked offline: pip resolves it for 3.12, nothing replaces the machine's torch.
+# Prints its size (limit 48 MiB) and what would travel with this checkout.
+KIT ?= .whl
+gpu-kit: install weights
+	$(PY) -m harness.cli.gpu_kit build --dest $(KIT)
 
 bench: install
 	$(VENV)/bin/ftgspp bench render

@@ -11,6 +11,8 @@ The resumable training state (optimizer, sampler, ...) is ``checkpoint.pt`` (``t
     save_config(cfg, out_dir)            # when training starts
     save_model(model, cc, out_dir)       # when it ends
     model, cfg = load_run(out_dir)
+    scene = run_scene(cfg, data=None)    # the run's scene (or the folder ``data`` names)
+    cc = load_colour_correction(out_dir, cfg, len(scene.train_ids))
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ import torch
 
 from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import TrainConfig, train_config_from_dict
+from ftgspp.data.load import load_scene
+from ftgspp.data.scene import Scene
 from ftgspp.errors import InputError
 from ftgspp.methods import method_class
 from ftgspp.methods.base import DynamicGaussians
@@ -60,3 +64,34 @@ def load_run(run_dir: str | Path, device: str = "cpu") -> tuple[DynamicGaussians
         raise InputError(run / CONFIG, f"unreadable: {err}") from err
     params = torch.load(run / GAUSSIANS, map_location=device, weights_only=True)
     return method_class(cfg.model.method)(params, cfg.model), cfg
+
+
+def load_colour_correction(run_dir: str | Path, cfg: TrainConfig, n_cameras: int,
+                           device: str | torch.device = "cpu") -> ColorCorrection | None:
+    """The colour correction a run learned (``None`` for a run without one): the transforms it
+    saved, in ``cfg.model.cc_gauge``; the identity when the run has one but saved none."""
+    if not cfg.model.color_correction:
+        return None
+    cc = ColorCorrection(n_cameras, device, cfg.model.cc_gauge)
+    run = Path(run_dir)
+    if (run / COLOR_MATRICES).is_file() and (run / COLOR_BIAS).is_file():
+        matrices = torch.from_numpy(np.load(run / COLOR_MATRICES)).to(device, torch.float32)  # [C, 3, 3]
+        biases = torch.from_numpy(np.load(run / COLOR_BIAS)).to(device, torch.float32)  # [C, 3]
+        if matrices.shape != cc.delta.shape or biases.shape != cc.bias.shape:
+            raise InputError(run / COLOR_MATRICES, f"transforms of {matrices.shape[0]} cameras, but the scene has"
+                             f" {n_cameras} training cameras")
+        with torch.no_grad():  # saved: the transforms in use, I + ΔM and b (a no-op in either gauge)
+            cc.delta.copy_(matrices - torch.eye(3, device=device))
+            cc.bias.copy_(biases)
+    return cc
+
+
+def run_scene(cfg: TrainConfig, data: str | None = None) -> Scene:
+    """The scene a run trained on (``cfg.data``), or the folder ``data`` when given;
+    ``InputError`` when the run's relative scene path does not exist here."""
+    if data:
+        cfg.data.path = data
+    elif not Path(cfg.data.path).is_dir():  # a relative path of a study run made elsewhere
+        raise InputError("data.path", f"{cfg.data.path}: no such folder here (the run's scene path is relative to"
+                         " where it was trained); give the scene with --data DIR")
+    return load_scene(cfg.data)

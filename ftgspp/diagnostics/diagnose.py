@@ -323,16 +323,10 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.theta < 1:
         raise InputError("--theta", f"must be in (0, 1), got {args.theta}")
 
-    from ftgspp.checkpoint import load_run
-    from ftgspp.data.load import load_scene
+    from ftgspp.checkpoint import load_run, run_scene
 
     model, cfg = load_run(args.run_dir)
-    if args.data:
-        cfg.data.path = args.data
-    elif not Path(cfg.data.path).is_dir():  # a relative path of a study run made elsewhere
-        raise InputError("data.path", f"{cfg.data.path}: no such folder here (the run's scene path is relative to"
-                         " where it was trained); give the scene with --data DIR")
-    scene = load_scene(cfg.data)
+    scene = run_scene(cfg, args.data)
     camera = None
     if args.camera is not None:
         names = [c.name for c in scene.cameras]

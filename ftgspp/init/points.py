@@ -299,8 +299,14 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
     if n_random < 0 or n_random >= budget:
         raise InputError("init.random_points", f"must be in [0, budget), got {n_random} with budget {budget}")
     rng = np.random.default_rng(seed)
-    near, far = depth_range(scene, cfg)
     check_velocity_mode(cfg)  # fail before the expensive matching
+    if cfg.matcher == "known":  # the control: a known-size scene's true Gaussians, perturbed (ftgspp/init/known.py)
+        from ftgspp.init.known import true_points
+
+        pts = _fit_budget(truth := InitPoints(**true_points(scene, cfg, rng)), budget, rng)  # fitted as matched points
+        pts.stats = init_stats([len(truth)], budget, cfg.matcher)
+        return pts
+    near, far = depth_range(scene, cfg)
     kfs = keyframes(scene, cfg)
     kf_times = [float(scene.times[f]) for f in kfs]
     check = check_option(cfg)

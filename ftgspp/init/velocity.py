@@ -46,8 +46,8 @@ def check_velocity_mode(cfg: InitConfig) -> None:
     available methods (before the expensive matching)."""
     if cfg.velocity not in ("knn", "flow"):
         raise InputError("init.velocity", f"unknown value {cfg.velocity!r}; expected 'knn' or 'flow'")
-    if getattr(cfg, "matcher", "sift") not in ("sift", "dense"):
-        raise InputError("init.matcher", f"unknown value {cfg.matcher!r}; expected 'sift' or 'dense'")
+    if getattr(cfg, "matcher", "sift") not in ("sift", "dense", "known"):
+        raise InputError("init.matcher", f"unknown value {cfg.matcher!r}; expected 'sift', 'dense' or 'known'")
     combine = getattr(cfg, "flow_combine", "mean")
     if combine not in ("mean", "lsq", "rays"):
         raise InputError("init.flow_combine", f"unknown value {combine!r}; expected 'mean', 'lsq' or 'rays'")

@@ -171,15 +171,25 @@ def speed_accuracy(df: pd.DataFrame, metric: str = "psnr") -> pd.DataFrame:
     return out
 
 
-def smallest_within(sa: pd.DataFrame, tol_db: float = 0.1) -> pd.Series | None:
-    """The variant with the smallest budget whose mean is within ``tol_db`` of the best
-    (ties: fewer iterations, then less train time)."""
+def smallest_within(sa: pd.DataFrame, tol_db: float | None = None) -> pd.Series | None:
+    """The variant with the smallest budget whose mean is within ``tol_db`` (default: PSNR's
+    smallest effect of interest, ``size_tolerance``) of the best (ties: fewer iterations, then
+    less train time)."""
+    tol_db = size_tolerance() if tol_db is None else tol_db
     ok = sa[sa["mean"].notna()]
     if ok.empty:
         return None
     best = ok["mean"].max()
     near = ok[ok["mean"] >= best - tol_db]
     return near.sort_values(["budget", "iterations", "train_seconds"]).iloc[0]
+
+
+def size_tolerance(metric: str = "psnr") -> float:
+    """How close to the best a model must be to count as enough: the metric's smallest effect of
+    interest (docs/sesoi.md; 0.2 dB for PSNR), the same rule as ``study budget``'s finder."""
+    from harness.spec.metrics import sesoi
+
+    return sesoi(metric)[0]
 
 
 def stability(df: pd.DataFrame, metric: str = "psnr") -> pd.DataFrame:

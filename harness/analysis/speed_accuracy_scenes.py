@@ -10,7 +10,7 @@ scene may be far too small for fast motion, so a study with several scenes asks 
   Gaussians) where the runs logged them;
 - ``smallest_per_scene``: per scene and method, the smallest budget whose mean is within
   ``tol_db`` of that method's best on the scene (``aggregate.smallest_within``), and the gap to
-  the best with a 95% Welch t-interval, which says whether "within 0.1 dB" is statistically settled;
+  the best with a 95% Welch t-interval, which says whether "within the SESOI" (0.2 dB for PSNR) is statistically settled;
 - ``method_comparison``: per scene and grid cell run by two methods, the second method's
   differences in quality (Welch 95% intervals) and ratios of cost against the first.
 
@@ -102,7 +102,7 @@ def welch_ci95(best: np.ndarray, chosen: np.ndarray) -> float:
     return float(ci.high - ci.low) / 2
 
 
-def smallest_per_scene(sa: pd.DataFrame, df: pd.DataFrame, tol_db: float = 0.1,
+def smallest_per_scene(sa: pd.DataFrame, df: pd.DataFrame, tol_db: float | None = None,
                        metric: str = "psnr") -> pd.DataFrame:
     """Per scene and method of ``sa`` (``per_scene``): the smallest budget within ``tol_db`` of
     that method's best on the scene.
@@ -112,8 +112,10 @@ def smallest_per_scene(sa: pd.DataFrame, df: pd.DataFrame, tol_db: float = 0.1,
     (0 when the chosen variant is the best), ``gap_ci_includes_tol`` whether that interval
     reaches ``tol_db`` (True: "within tol_db" is not settled; NA: no interval),
     ``largest_budget`` the scene's largest budget tried (chosen there: no saturation shown).
-    Scenes without a finished run have no row.
+    Scenes without a finished run have no row. ``tol_db`` defaults to the metric's smallest
+    effect of interest (``aggregate.size_tolerance``).
     """
+    tol_db = aggregate.size_tolerance(metric) if tol_db is None else tol_db
     rows = []
     for (scene, _), cells in sa.groupby(["scene", "method"], sort=False):
         chosen = aggregate.smallest_within(cells, tol_db)

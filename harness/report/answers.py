@@ -2,7 +2,7 @@
 
 - ``speed_sentence``: what FreeTimeGS++ costs and buys against FreeTimeGS at the grid's
   reference cell (``speed_accuracy/method_comparison.csv``);
-- ``size_sentence``: the smallest budget within 0.1 dB of each method's best per scene
+- ``size_sentence``: the smallest budget within the SESOI (0.2 dB) of each method's best per scene
   (``speed_accuracy/speed_accuracy_smallest.csv``) and the budget finder's answer on the scene of
   known size (``budget/budget_known_size/budget.csv``);
 - ``stability_sentence``: where each method first breaks along the stability ladders, and on
@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from harness.analysis.aggregate import size_tolerance
 from harness.report.speed_accuracy_text import unsaturated
 
 REFERENCE_CELL = (5000.0, 3000.0)  # the quick profile's budget and iterations
@@ -78,17 +79,46 @@ def _needs(r: pd.Series) -> str:
     return f"{r.scene_label} {r.budget:,.0f}" + (" (not settled)" if unsettled and r.variant != r.best_variant else "")
 
 
+def _known_size_page(root: Path) -> pd.DataFrame:
+    """The known-size scene's search: the noisy scene's (``budget_known_size_noise*``, whose PSNR
+    has a ceiling) when there is one, else the noise-free one's."""
+    for page in [*sorted((root / "budget").glob("budget_known_size_noise*/budget.csv")), root / KNOWN_SIZE]:
+        found = _read(page)
+        if {"chosen", "true_size", "saturated"} <= set(found):  # a page from before these columns: none
+            return found
+    return pd.DataFrame()
+
+
+def _search(found: pd.DataFrame) -> str:
+    """``5,000 (4,012 drawn; 0.29 MB; gap to the best +0.05 [−0.10, +0.15] dB)`` for a budget page's
+    chosen row (what the page has of it), or ``≥ …`` and why it did not settle."""
+    row = found[found.chosen].iloc[0]
+    details = []
+    if pd.notna(row.get("n_alive", float("nan"))):
+        details.append(f"{row.n_alive:,.0f} drawn")
+    if pd.notna(row.get("model_bytes", float("nan"))):
+        details.append(f"{row.model_bytes / 1e6:.2f} MB")
+    if not bool(row.get("best", True)) and pd.notna(row.get("gap_high", float("nan"))):
+        details.append(f"gap to the best {row.gap_mean:+.2f} [{row.gap_low:+.2f}, {row.gap_high:+.2f}] dB")
+    if not bool(found.saturated.iloc[0]):  # doubling reached the cap without a settled gain
+        need = found.runs_needed.iloc[0] if "runs_needed" in found else float("nan")
+        details.insert(0, "not saturated at the cap" + (f"; {need:,.0f} runs a budget would settle it"
+                                                         if pd.notna(need) and need != float("inf") else ""))
+        return f"≥ {row.budget:,.0f} Gaussians ({'; '.join(details)})"
+    if "settled" in found and not bool(found.settled.iloc[0]):
+        details.insert(0, "not settled within the SESOI")
+    return f"{row.budget:,.0f} Gaussians" + (f" ({'; '.join(details)})" if details else "")
+
+
 def size_sentence(root: Path) -> str:
-    """Per method, each scene's smallest budget within 0.1 dB of that method's best colour-aligned
-    PSNR on the grid (raw PSNR for a report without it: the held-out camera's colour, which no
-    budget learns, flattens the raw one), or that it does not saturate; then the known-size
-    scene's search (raw PSNR: that scene has no colour shift)."""
+    """Per method, each scene's smallest budget within the SESOI (0.2 dB) of that method's best
+    colour-aligned PSNR on the grid (raw PSNR for a report without it: the held-out camera's
+    colour, which no budget learns, flattens the raw one), or that it does not saturate; then the
+    budget finder's answers (``study budget``): the known-size scene's (as a multiple of the K that
+    drew it, beside the control started from the true Gaussians) and the textured scenes'."""
     aligned = _read(root / "speed_accuracy" / "speed_accuracy_smallest_psnr_cc.csv")
     chosen = aligned if not aligned.empty else _read(root / "speed_accuracy" / "speed_accuracy_smallest.csv")
     metric = "colour-aligned PSNR" if not aligned.empty else "raw PSNR"
-    known = _read(root / KNOWN_SIZE)
-    if not {"chosen", "true_size", "saturated"} <= set(known):  # a page from before these columns
-        known = pd.DataFrame()
     parts = []
     if not chosen.empty:
         method = chosen["method"].fillna("") if "method" in chosen else pd.Series([""] * len(chosen))
@@ -96,29 +126,25 @@ def size_sentence(root: Path) -> str:
             parts.append((f"`{m}`: " if m else "") + ", ".join(_needs(r) for _, r in sub.iterrows()))
     text = ""
     if parts:
-        text = (f"**The smallest sufficient model** (within 0.1 dB of the best {metric} on the grid up to"
-                f" {chosen.largest_budget.max():,.0f} Gaussians): " + "; ".join(parts) + ".")
+        text = (f"**The smallest sufficient model** (within the SESOI, {size_tolerance():g} dB, of the best {metric}"
+                f" on the grid up to {chosen.largest_budget.max():,.0f} Gaussians): " + "; ".join(parts) + ".")
+    known = _known_size_page(root)
     if not known.empty and known.chosen.any():
         row = known[known.chosen].iloc[0]
         k = known.true_size.iloc[0]
         ratio = "" if math.isnan(k) else f", {row.budget / k:.2f}× the K = {k:,.0f} that drew it"
-        if bool(known.saturated.iloc[0]):
-            text += f" On the scene of known size the budget finder answers {row.budget:,.0f} Gaussians{ratio}."
-        else:
-            text += (f" On the scene of known size the budget finder does not saturate by {row.budget:,.0f} Gaussians"
-                     f"{ratio}.")
+        control = known.control_mean.iloc[0] if "control_mean" in known else float("nan")
+        started = "" if pd.isna(control) else f"; started from the true Gaussians at K: {control:.2f} dB"
+        text += f" On the scene of known size the budget finder answers {_search(known)}{ratio}{started}."
     searches = []
     for page in sorted((root / "budget").glob("budget_*/budget.csv")):
         found = _read(page)
-        if page.parent.name == KNOWN_SIZE.parent.name or "chosen" not in found or not found.chosen.any():
+        if page.parent.name.startswith(KNOWN_SIZE.parent.name) or "chosen" not in found or not found.chosen.any():
             continue
-        row = found[found.chosen].iloc[0]
-        scene = page.parent.name.removeprefix("budget_")
-        settled = "settled" in found and bool(found.settled.iloc[0])
-        searches.append(f"{scene} ≥ {row.budget:,.0f} (no saturation)" if not bool(found.saturated.iloc[0])
-                        else f"{scene} {row.budget:,.0f}" + ("" if settled else " (not settled)"))
+        searches.append(f"{page.parent.name.removeprefix('budget_')} {_search(found)}")
     if searches:
-        text += (" `study budget` (FreeTimeGS, doubling while a doubling gains 0.1 dB, 3 seeds a budget): "
+        text += (" `study budget` (FreeTimeGS, 3 seeds a budget; doubling until a doubling's gain is settled inside"
+                 " the SESOI, then the smallest budget whose gap to the best is settled below it): "
                  + ", ".join(searches) + ".")
     return text.strip()
 

@@ -139,7 +139,9 @@ def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[P
     finished one)."""
     assert data.recorded is not None
     src = data.recorded.folder / "diagnostics"
-    patterns = list(data.study.diagnostics) or ["*"]
+    patterns = list(data.study.diagnostics)
+    if not patterns:
+        return []
     seeds = {(v, s): seed for v, s, seed in data.recorded.diagnostic_seeds}
     got = []
     ok = data.df[data.df.status == "FINISHED"].sort_values("seed")

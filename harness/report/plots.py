@@ -3,7 +3,7 @@
 - ``strip_plot``: every run's metric per variant, one panel per scene, mean +- std bars,
   failed runs counted under each variant (the paper's run-to-run figure);
 - ``speed_accuracy_plot``: PSNR against training time and against #Gaussians, Pareto
-  front joined, the smallest budget within 0.1 dB of the best starred;
+  front joined, the smallest budget within the SESOI (0.2 dB) of the best starred;
   ``speed_accuracy_scenes_plot``: the same, one row per scene (``analysis.speed_accuracy_scenes``);
 - ``stability_plot``: per difficulty cell and method, mean +- std, spread and failure rate.
 
@@ -154,7 +154,7 @@ def _speed_accuracy_row(axes: np.ndarray, sa: pd.DataFrame, chosen: pd.Series | 
     handles += [line([], [], color="black", ls="--", label="Pareto front")]
     if chosen is not None:
         handles += [line([], [], marker="*", ms=14, color="gold", mec="black", ls="none",
-                         label=f"smallest budget within 0.1 dB: {chosen['variant']}")]
+                         label=f"smallest budget within the SESOI: {chosen['variant']}")]
     axes[1].legend(handles=handles, fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
 
 

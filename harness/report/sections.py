@@ -280,14 +280,15 @@ def _diagnostic_files(data: ReportData, runs: pd.DataFrame, patterns: list[str])
 
 
 def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[Path]]]:
-    """Copy the diagnostics of the lowest finished seed with figures per (variant, scene) into
+    """Copy the diagnostics the study file names (``diagnostics:``, file-name patterns; none when it
+    names none) of the lowest finished seed with figures per (variant, scene) into
     ``out/diagnostics/<variant>/<scene>/``; returns (variant, scene, seed, files). A report from
     committed runs reuses the committed report's files (``report.committed``)."""
     if data.recorded is not None:
         return committed.diagnostics(data, out)
-    if data.store is None:
+    patterns = list(data.study.diagnostics)  # a study that names none copies none (they are in the store)
+    if data.store is None or not patterns:
         return []
-    patterns = list(data.study.diagnostics) or ["*"]
     got = []
     ok = data.df[data.df.status == "FINISHED"].sort_values("seed")
     for (v, s), sub in ok.groupby(["variant", "scene"], sort=False):

@@ -9,6 +9,7 @@ from itertools import combinations
 
 import pandas as pd
 
+from harness.analysis.aggregate import size_tolerance
 from harness.analysis.speed_accuracy_scenes import method_comparison, per_scene, smallest_per_scene
 from harness.spec.metrics import label
 
@@ -85,8 +86,9 @@ def pair_sentences(chosen: pd.DataFrame) -> list[str]:
     return out
 
 
-def markdown(chosen: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr") -> str:
+def markdown(chosen: pd.DataFrame, tol_db: float | None = None, metric: str = "psnr") -> str:
     """Per-scene table of ``smallest_per_scene`` followed by one sentence per scene pair."""
+    tol_db = size_tolerance(metric) if tol_db is None else tol_db
     name = label(metric)
     named = "method" in chosen and chosen.method.astype(bool).any()
     lines = [f"| Scene |{' Method |' if named else ''} Smallest budget | Iterations | {name} (mean ± 95% CI) |"
@@ -103,9 +105,10 @@ def markdown(chosen: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr") ->
     return "\n".join(lines)
 
 
-def report_markdown(df: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr", on: str = "") -> str:
+def report_markdown(df: pd.DataFrame, tol_db: float | None = None, metric: str = "psnr", on: str = "") -> str:
     """The report's section: heading (``on`` names the metric in it), how to read it, the table
     and the scene comparisons."""
+    tol_db = size_tolerance(metric) if tol_db is None else tol_db
     sa = per_scene(df, metric)
     chosen = smallest_per_scene(sa, df, tol_db, metric)
     lines = [f"### Smallest budget within {tol_db:g} dB of the best, per scene{on}", "",
@@ -121,7 +124,7 @@ def report_markdown(df: pd.DataFrame, tol_db: float = 0.1, metric: str = "psnr",
     return "\n".join(lines)
 
 
-def colour_aligned_markdown(df: pd.DataFrame, tol_db: float = 0.1) -> str:
+def colour_aligned_markdown(df: pd.DataFrame, tol_db: float | None = None) -> str:
     """The same search on colour-aligned PSNR, and why it is shown beside the raw one."""
     return "\n".join([
         report_markdown(df, tol_db, "psnr_cc", on=", on colour-aligned PSNR"), "",

@@ -8,9 +8,19 @@ at a constant velocity (FreeTimeGS's motion model), on the black background the 
 composites onto (``TrainConfig.background``). Frames are rendered with ``ftgspp.render.render``
 (the ``cpu`` backend training uses), seen by the synthetic scenes' camera rig
 (``ftgspp.data.synthetic.rig``: ``cam00``, the middle camera, is held out) and written in the
-DyNeRF layout with lossless video and no sensor noise or colour shift, so no budget has to
-spend Gaussians on anything but the blobs. A budget of ``k`` can in principle redraw every
-frame exactly; ``reports/budget`` shows what the finder answers (reports/FINDINGS.md reads it).
+DyNeRF layout with lossless video and no colour shift, so no budget has to spend Gaussians on
+anything but the blobs. A budget of ``k`` can in principle redraw every frame exactly;
+``reports/budget`` shows what the finder answers (reports/FINDINGS.md reads it).
+
+Noise-free (``noise_sd: 0``, the default and the scene of the committed runs) the scene has no
+PSNR ceiling: a model that fits it better keeps gaining, so a saturation rule need never stop
+(the committed search, reports/budget/budget_known_size, kept doubling to 16,000). With
+``noise_sd: σ`` every pixel and channel of every camera gets N(0, σ²) in 8-bit units before the
+8-bit rounding (clipped to [0, 255]; seeded by ``(seed, NOISE_STREAM, camera index)``, apart from
+the Gaussians' stream), so a perfect model's held-out PSNR is about 20·log10(255/σ) (σ = 2: ≈ 42
+dB; higher where the black background clips the noise) — ``known_size.json`` records the value
+measured on the held-out camera (``noise_floor_psnr``). ``study budget --preset known_size`` uses
+σ = 2 (``cli.budget.NOISE_SD``).
 
 A study scene names it as a synthetic preset (``synth: {preset: known_size, k: 500}``; its
 arguments and their checks are ``harness.spec.known_scene``, and ``run.scenes`` dispatches it here); ``study budget --preset known_size`` searches it. The true
@@ -29,8 +39,8 @@ carries it (the largest compositing weight T·α there, at least ``CARRY_MIN``),
 still Gaussian or nothing carries it; ``gt/depth`` the carrier's centre depth (NaN where
 nothing carries the pixel); ``gt/flow3d`` the true velocities composited like a colour (Σ T_i α_i
 v_i / Σ T_i α_i, as the diagnostics composite a model's; 0 where nothing carries the pixel), the
-velocity of what the pixel shows where Gaussians overlap; ``gt/clean`` the frames (the videos
-are lossless and noise-free already); ``gt/gaussians.npz`` the true Gaussians. Only
+velocity of what the pixel shows where Gaussians overlap; ``gt/clean`` the noise-free frames (the
+videos themselves when ``noise_sd`` is 0); ``gt/gaussians.npz`` the true Gaussians. Only
 ``cam00``: the training cameras have no ground truth, so the initialisation's scores against
 it (``ftgspp/init/quality.py``, which need every training camera's) stay off, as without it.
 """
@@ -75,8 +85,9 @@ def draw_gaussians(cfg: KnownSizeConfig) -> dict[str, np.ndarray]:
     }
 
 
-def render_frames(g: dict[str, np.ndarray], cam: Any, times: np.ndarray, t_mid: float) -> np.ndarray:
-    """uint8 RGB frames ``[F, H, W, 3]`` of the Gaussians seen by ``cam`` at ``times``."""
+def render_levels(g: dict[str, np.ndarray], cam: Any, times: np.ndarray, t_mid: float) -> np.ndarray:
+    """RGB frames ``[F, H, W, 3]`` of the Gaussians seen by ``cam`` at ``times``, float32 in 8-bit
+    units (0–255, not rounded)."""
     import torch
 
     from ftgspp.render import render
@@ -92,10 +103,34 @@ def render_frames(g: dict[str, np.ndarray], cam: Any, times: np.ndarray, t_mid: 
             means = t["means"] + t["velocities"] * float(time - t_mid)
             out = render(means, t["quats"], t["scales"], t["opacities"], t["colors"], viewmat, K, cam.width,
                          cam.height, torch.zeros(3), backend="cpu")
-            frames.append((out.image.clamp(0, 1).numpy() * 255 + 0.5).astype(np.uint8))
+            frames.append(out.image.clamp(0, 1).numpy() * 255)
     return np.stack(frames)
 
 
+def render_frames(g: dict[str, np.ndarray], cam: Any, times: np.ndarray, t_mid: float) -> np.ndarray:
+    """uint8 RGB frames ``[F, H, W, 3]`` of the Gaussians seen by ``cam`` at ``times`` (noise-free)."""
+    return (render_levels(g, cam, times, t_mid) + 0.5).astype(np.uint8)
+
+
+NOISE_STREAM = 56  # the sensor noise's random stream, apart from the Gaussians' (seed, NOISE_STREAM, camera)
+
+
+def add_noise(level: np.ndarray, sd: float, rng: np.random.Generator) -> np.ndarray:
+    """uint8 of ``level`` (8-bit units, any shape) plus N(0, sd²) per element, rounded to the
+    nearest level and clipped to [0, 255], as a sensor's read-out."""
+    return np.clip(np.rint(level + rng.normal(0.0, sd, size=level.shape)), 0, 255).astype(np.uint8)
+
+
+def noise_floor_psnr(levels: np.ndarray, noisy: np.ndarray) -> float:
+    """The held-out PSNR a perfect model scores on ``noisy`` frames (uint8 ``[F, H, W, 3]``): mean
+    over frames of the PSNR (data range 1, as ``ftgspp.image_metrics.psnr``) of the noise-free
+    render ``levels`` (``render_levels``: what the true Gaussians draw, unrounded)."""
+    err = (levels.astype(np.float64) - noisy.astype(np.float64)) / 255
+    mse = (err**2).reshape(len(err), -1).mean(axis=1)
+    return float(np.mean(-10 * np.log10(mse)))
+
+
+OPTIONAL = ("ground_truth", "noise_sd")  # arguments named in known_size.json only when set (as before them)
 CARRY_MIN = 1.0 / 255  # a weight below one 8-bit level carries nothing
 CARRIER_CHUNK = 128  # Gaussians rendered as one-hot colour channels per pass
 
@@ -179,24 +214,32 @@ def generate(out: str | Path, layout: str = "dynerf", preset: str = PRESET, seed
                     target=TARGET, eye_height=EYE_HEIGHT)
     times = np.arange(cfg.rig.n_frames) / cfg.rig.fps
     t_mid = float(times[-1]) / 2
-    rows = {}
-    for cam in cams:
-        frames = render_frames(g, cam, times, t_mid)
+    rows, floor = {}, None
+    for i, cam in enumerate(cams):
+        levels = render_levels(g, cam, times, t_mid)
+        frames = clean = (levels + 0.5).astype(np.uint8)
+        if cfg.noise_sd > 0:
+            frames = add_noise(levels, cfg.noise_sd, np.random.default_rng([cfg.seed, NOISE_STREAM, i]))
+            if i == 0:  # the held-out camera: what a perfect model scores there
+                floor = noise_floor_psnr(levels, frames)
         write_video(out / f"{cam.name}.mp4", frames, cfg.rig.fps, "ffv1")
         if cfg.ground_truth and cam.name == cams[0].name:  # the held-out camera
-            write_ground_truth(out, g, cam, times, t_mid, frames)
+            write_ground_truth(out, g, cam, times, t_mid, clean)
         depth = (g["means"] @ cam.R.T + cam.T)[:, 2]
         rows[cam.name] = poses_bounds_row(cam, max(0.1, float(depth.min()) - 1.0), float(depth.max()) + 1.0)
     np.save(out / "poses_bounds.npy", np.stack([rows[n] for n in sorted(rows)]).astype(np.float64))
     np.savez(out / "known_size.npz", **g, t_mid=t_mid)
     (out / "known_size.json").write_text(json.dumps({
         "k": cfg.k, "moving": int(g["moving"].sum()), "params": {**{k: v for k, v in asdict(cfg).items()
-                                                                   if k != "rig" and (k != "ground_truth" or v)},
+                                                                   if k != "rig" and (k not in OPTIONAL or v)},
                    **{f: getattr(cfg.rig, f) for f in RIG_FIELDS}}, "test_cameras": [cams[0].name],
         "gaussians": "known_size.npz: means at t_mid [k, 3], velocities units/s, scales (activated), quats (w, x,"
                      " y, z), opacities, colors (RGB), moving (0/1);"
                      " position at time t = means + velocities (t - t_mid)",
         "background": [0.0, 0.0, 0.0],
+        **({} if floor is None else {"noise_floor_psnr": floor, "noise_floor": "held-out PSNR (dB) of the noise-free"
+            " frames against the written ones on cam00 at full resolution: a perfect model's score (a loader that"
+            " downsamples by d averages d² pixels, lowering the noise SD by d)"}),
     }, indent=2))
     return out
 

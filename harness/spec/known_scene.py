@@ -34,6 +34,9 @@ class KnownSizeConfig:
     # also write the held-out camera's ground truth (gt/: the true Gaussians, per-pixel carrier ids
     # of the moving ones, depth, scene flow, the noise-free frames) for the diagnostics' scores
     ground_truth: bool = False
+    # sensor noise: per-pixel, per-channel Gaussian of this SD in 8-bit units before the 8-bit rounding
+    # (0: noise-free, the scene before issue 56; 2: a perfect model's PSNR ≈ 20·log10(255/2) ≈ 42 dB)
+    noise_sd: float = 0.0
     seed: int = 0
     layout: str = "dynerf"
     preset: str = PRESET
@@ -57,6 +60,8 @@ def resolve(args: dict[str, Any]) -> KnownSizeConfig:
         raise InputError(PRESET, f"writes the dynerf layout only, not '{cfg.layout}'")
     if cfg.k < 1 or not 0 <= cfg.moving_share <= 1 or rig.n_cameras < 3 or rig.n_frames < 2:
         raise InputError(PRESET, "needs k >= 1, 0 <= moving_share <= 1, n_cameras >= 3 and n_frames >= 2")
+    if not 0 <= cfg.noise_sd <= 64:
+        raise InputError(PRESET, f"needs 0 <= noise_sd <= 64 (8-bit units), got {cfg.noise_sd}")
     if cfg.ground_truth and cfg.k >= 2**16 - 1:
         raise InputError(PRESET, f"ground_truth labels pixels with 16-bit ids: needs k < 65535, got {cfg.k}")
     return cfg

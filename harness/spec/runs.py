@@ -7,9 +7,11 @@ standalone commands (``ftgspp synth`` + ``ftgspp train``) that reproduce one run
 from __future__ import annotations
 
 import json
+import os
 import shlex
 from dataclasses import dataclass, field
 
+from ftgspp.errors import InputError
 from harness.spec.known_scene import PRESET as KNOWN_SIZE
 from harness.spec.sphere_scene import PRESET as SPHERES
 from harness.spec.study_files import require
@@ -113,11 +115,7 @@ def describe_runs(runs: list[RunSpec]) -> str:
 def command_line(study: str, sel: Selection, jobs: int = 1, launcher: str = "basic") -> str:
     """The ``study run`` command that reproduces an invocation (a study named by its file's path
     in this process, ``study run path/to/mine.yaml``, by that path)."""
-    from harness.spec import study_files
-
-    named = study_files.NAMED_FILE
-    parts = ["study", "run", str(named) if named is not None and named.stem == study else study, "--profile",
-             sel.profile]
+    parts = ["study", "run", study_ref(study), "--profile", sel.profile]
     if launcher != "basic":
         parts += ["--launcher", launcher]
     if sel.seeds is not None:
@@ -128,7 +126,31 @@ def command_line(study: str, sel: Selection, jobs: int = 1, launcher: str = "bas
         parts += ["--variants", ",".join(sel.variants)]
     if jobs > 1:
         parts += ["--jobs", str(jobs)]
-    return " ".join(shlex.quote(p) for p in [*parts, *sel.overrides])
+    where = study_method_path(study, sel)
+    return (f"PYTHONPATH={shlex.quote(where)} " if where else "") + " ".join(shlex.quote(p) for p in [*parts, *sel.overrides])
+
+
+def study_ref(study: str) -> str:
+    """How commands name a study: by its file's path when this process was given one
+    (``study run path/to/mine.yaml``), else by its name."""
+    from harness.spec import study_files
+
+    named = study_files.NAMED_FILE
+    return str(named) if named is not None and named.stem == study else study
+
+
+def study_method_path(study: str, sel: Selection) -> str:
+    """What ``PYTHONPATH`` the study's methods outside the package need (``method_path`` of every
+    variant of the selected profile, joined; "" for studies of built-in methods only, or a study
+    this process cannot load)."""
+    from harness.spec import study_files
+
+    try:
+        prof = study_files.load_study(study).profile(sel.profile)
+    except (InputError, OSError, KeyError):
+        return ""
+    variants = [v for name, v in prof.variants.items() if not sel.variants or name in sel.variants]
+    return os.pathsep.join(sorted({method_path([*v, *sel.overrides]) for v in variants} - {""}))
 
 
 # generator arguments with a flag of their own in ``ftgspp synth``; the others go through --set

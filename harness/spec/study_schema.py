@@ -336,7 +336,8 @@ class StudySpec:
     metrics: tuple[str, ...] = ("psnr",)  # fnmatch patterns
     table: TableSpec = field(default_factory=TableSpec)
     plots: tuple[Plot, ...] = ()
-    diagnostics: tuple[str, ...] = ()  # images the runs logged under the diagnostics/ artifact path
+    # the files of the runs' diagnostics/ artifacts the report copies (fnmatch patterns); none when empty
+    diagnostics: tuple[str, ...] = ()
     profiles: dict[str, ProfileSpec] = key(factory=dict, required=True, written=dict[ProfileName, ProfileSpec])
     notes: str = ""
     path: Path | None = derived(None)

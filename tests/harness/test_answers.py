@@ -68,8 +68,8 @@ def test_stability_names_first_breaks_and_quality_losses(tmp_path: Path) -> None
 def test_an_unsaturated_known_size_search_says_so(tmp_path: Path) -> None:
     _write(tmp_path, "budget/budget_known_size/budget.csv", [
         {"budget": b, "chosen": b == 16000, "saturated": False, "true_size": 500.0} for b in (500, 16000)])
-    assert size_sentence(tmp_path) == ("On the scene of known size the budget finder does not saturate by 16,000"
-                                       " Gaussians, 32.00× the K = 500 that drew it.")
+    assert size_sentence(tmp_path) == ("On the scene of known size the budget finder answers ≥ 16,000 Gaussians"
+                                       " (not saturated at the cap), 32.00× the K = 500 that drew it.")
 
 
 def test_preset_budget_searches_join_the_size_sentence(tmp_path: Path) -> None:
@@ -79,5 +79,28 @@ def test_preset_budget_searches_join_the_size_sentence(tmp_path: Path) -> None:
     _write(tmp_path, "budget/budget_static/budget.csv", [
         {"budget": b, "chosen": b == 40000, "saturated": False, "true_size": float("nan")} for b in (5000, 40000)])
     s = size_sentence(tmp_path)
-    assert s.endswith("`study budget` (FreeTimeGS, doubling while a doubling gains 0.1 dB, 3 seeds a budget):"
-                      " plain 7,500 (not settled), static ≥ 40,000 (no saturation).")
+    assert s.endswith("then the smallest budget whose gap to the best is settled below it): plain 7,500 Gaussians"
+                      " (not settled within the SESOI), static ≥ 40,000 Gaussians (not saturated at the cap).")
+
+
+def test_the_size_answer_gives_drawn_gaussians_bytes_the_gap_and_the_control(tmp_path: Path) -> None:
+    """Issue 56: the answer names the Gaussians the chosen models draw, their bytes and the gap's
+    interval; the noisy known-size scene's page (a PSNR ceiling) is preferred to the noise-free one's,
+    and its control (trained from the true Gaussians at K) stands beside it; unsettled at the cap,
+    the runs a budget would need."""
+    page = {"true_size": 500.0, "saturated": True, "settled": True, "control_mean": 41.234}
+    _write(tmp_path, "budget/budget_known_size_noise2/budget.csv", [
+        {**page, "budget": 1000, "chosen": True, "best": False, "n_alive": 912.0, "model_bytes": 61_000.0,
+         "gap_mean": 0.05, "gap_low": -0.04, "gap_high": 0.14},
+        {**page, "budget": 2000, "chosen": False, "best": True, "n_alive": 1500.0, "model_bytes": 122_000.0,
+         "gap_mean": 0.0, "gap_low": 0.0, "gap_high": 0.0}])
+    _write(tmp_path, "budget/budget_known_size/budget.csv", [
+        {"budget": 16000, "chosen": True, "saturated": False, "true_size": 500.0}])
+    _write(tmp_path, "budget/budget_static/budget.csv", [
+        {"budget": b, "chosen": b == 40000, "best": True, "saturated": False, "runs_needed": 14.0,
+         "n_alive": 21000.0, "true_size": float("nan")} for b in (20000, 40000)])
+    s = size_sentence(tmp_path)
+    assert ("the budget finder answers 1,000 Gaussians (912 drawn; 0.06 MB; gap to the best +0.05 [-0.04, +0.14] dB),"
+            " 2.00× the K = 500 that drew it; started from the true Gaussians at K: 41.23 dB.") in s
+    assert "16,000" not in s  # the noise-free page gives way to the noisy one
+    assert "static ≥ 40,000 Gaussians (not saturated at the cap; 14 runs a budget would settle it; 21,000 drawn)" in s

@@ -24,6 +24,7 @@ ROOT = Path(__file__).resolve().parents[2]
 STUDY = {  # MINI_STUDY's first two claims, its quick profile run 2 at a time
     **MINI_STUDY,
     "claims": MINI_STUDY["claims"][:2],
+    "diagnostics": ["lifetime*"],  # a report copies only the diagnostics its study names
     "profiles": {
         "quick": {k: v for k, v in {**MINI_STUDY["profiles"]["quick"], "jobs": 2}.items() if k != "command"},
         "paper": MINI_STUDY["profiles"]["paper"],

@@ -103,8 +103,12 @@ def test_status_and_report(toy, capsys: pytest.CaptureFixture[str]) -> None:
     out = capsys.readouterr().out
     assert "total: 4 done, 4 failed, 0 missing" in out
     assert "failed seeds 0 (diverged), 1 (diverged)" in out
+    stale = toy["work"] / "outputs" / "reports" / "toy" / "diagnostics" / "gone" / "easy" / "old.png"
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(b"a diagnostic an earlier report copied")
     assert main(["report", "toy"]) == 0
     report = toy["work"] / "outputs" / "reports" / "toy"
+    assert not stale.parent.parent.exists()  # a report from the store keeps only its own diagnostics
     for name in ("index.md", "table.md", "table.tex", "strip_psnr.png", "stability.png", "speed_accuracy.png", "runs.csv"):
         assert (report / name).is_file(), name
     assert (report / "diagnostics" / "cc" / "easy" / "lifetime_hist.png").is_file()
