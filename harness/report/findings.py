@@ -141,8 +141,8 @@ def collect_findings(root: Path, studies_dir: Path | None = None) -> dict[str, f
             _table(f"{study}.{_slug(page.parent.name)}", page, "budget", ["budget"], out)
     if (root / "claims.csv").is_file():  # the index's verdicts: corrected over every study
         for _, r in pd.read_csv(root / "claims.csv").iterrows():
-            for col in ("effect", "ci_low", "ci_high", "sesoi", "p", "p_tost", "p_adj", "p_tost_adj", "n_needed",
-                        "family_size"):
+            for col in ("effect", "ci_low", "ci_high", "ci_adj_low", "ci_adj_high", "sesoi", "p", "p_tost", "p_adj",
+                        "p_tost_adj", "n_needed", "family_size"):
                 _put(out, f"{r.study}.claims.{r.id}.{col}", r.get(col))
             if r.get("test") == "variance":  # an SD ratio: its direction is read against 1
                 out[f"{r.study}.claims.{r.id}.centre"] = 1.0

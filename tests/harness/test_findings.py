@@ -75,3 +75,16 @@ def test_a_wrong_whole_number_or_a_flipped_direction_fails(tmp_path: Path) -> No
     effect = "secret5.claims.cc_raises_mean.effect"
     assert check(f"CC raises the mean by +0.02<!--{effect}--> dB.", f) == []
     assert check(f"CC lowers the mean by +0.02<!--{effect}--> dB.", f) != []
+
+
+def test_the_committed_findings_read_in_minutes_and_cite_the_adjusted_intervals() -> None:
+    """FINDINGS.md stays short (its history lives in docs/findings-history.md), and a claim's
+    Holm-adjusted interval is a key it can cite, so its intervals are the ones the verdicts use."""
+    text = (ROOT / "reports" / "FINDINGS.md").read_text()
+    assert len(text.encode()) <= 15_000
+    assert "claims.cc_improves.ci_adj_low" in text
+    f = collect_findings(ROOT / "reports")
+    claims = pd.read_csv(ROOT / "reports" / "claims.csv")
+    row = claims[(claims.study == "ablation") & (claims.id == "cc_improves")].iloc[0]
+    assert f["ablation.claims.cc_improves.ci_adj_low"] == pytest.approx(row.ci_adj_low)
+    assert (ROOT / "docs" / "findings-history.md").read_text().count("\n## Findings") >= 2
