@@ -49,6 +49,11 @@ class ModelConfig:
     # mean of the per-camera transforms pinned to the identity, so they cannot drift together away
     # from the uncorrected held-out camera; an option the collapse study measures)
     cc_gauge: str = "free"
+    # the cpu backend's path for this method (``prepare_cpu``, docs/methods.md "Rendering"): True its
+    # fused stage, False the generic path (``at_time``, then the shared projection), None the path its
+    # runs were first made with (FreeTimeGS fused, STGS generic: their bits). conf/model/stg.yaml
+    # sets True; the two paths agree to float rounding, not bit for bit
+    fused_stage: bool | None = None
 
 
 @dataclass

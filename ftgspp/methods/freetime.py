@@ -134,8 +134,11 @@ class FreeTimeGaussians(DynamicGaussians):
 
     def prepare_cpu(self, t: float, camera: CameraTensors, sh_degree: int) -> tuple[Projected, GaussiansAt] | None:
         """The fused stage (``freetime_fused.prepare``): exactly ``at_time``, SH colour and projection.
-        None for a subclass that redefines what the parameters mean at t (``_FUSED_FORMULAS``): the
-        kernel knows only these formulas, so it renders through the generic path."""
+        None with ``model.fused_stage=false``, or for a subclass that redefines what the parameters mean
+        at t (``_FUSED_FORMULAS``): the kernel knows only these formulas, so it renders through the
+        generic path."""
+        if self.cfg.fused_stage is False:
+            return None
         if any(getattr(type(self), name) is not getattr(FreeTimeGaussians, name) for name in _FUSED_FORMULAS):
             return None
         from ftgspp.methods.freetime_fused import prepare  # Numba: imported on the first cpu render

@@ -105,7 +105,10 @@ class SpacetimeGaussians(DynamicGaussians):
         """The fused stage (``stg_fused.prepare``): exactly ``at_time`` and the projection, colour the
         RGB as given (``sh_degree`` does not apply). None for a subclass that redefines what the
         parameters mean at t (``_FUSED_FORMULAS``): the kernel knows only these formulas, so it
-        renders through the generic path."""
+        renders through the generic path. Only with ``model.fused_stage=true`` (conf/model/stg.yaml):
+        STGS's runs before this stage went through the generic path, and a run keeps its bits."""
+        if not self.cfg.fused_stage:
+            return None
         if any(getattr(type(self), name) is not getattr(SpacetimeGaussians, name) for name in _FUSED_FORMULAS):
             return None
         from ftgspp.methods.stg_fused import prepare  # Numba: imported on the first cpu render

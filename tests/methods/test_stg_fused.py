@@ -29,7 +29,7 @@ from ftgspp.view import camera_tensors, render_view
 from tests.methods.awkward_scene import H, W, awkward_gaussians, make_camera, render_both_backends
 from tests.numba_threads import under_thread_counts
 
-STG = ModelConfig(name="stg", method="stg", sh_degree=0)
+STG = ModelConfig(name="stg", method="stg", sh_degree=0, fused_stage=True)  # conf/model/stg.yaml
 OUTPUTS = ("means2d", "conics", "colors", "opacities", "depths", "temporal", "means")
 T_EVAL = 0.4
 
@@ -307,3 +307,26 @@ def test_training_through_the_fused_stage_is_seeded_and_close_to_the_generic_pat
     assert abs(metrics["a"]["ssim1"] - metrics["generic"]["ssim1"]) < 2e-3
     for k in a:  # the same Gaussians, moved alike
         torch.testing.assert_close(a[k], params["generic"][k], rtol=0.05, atol=0.05, msg=k)
+
+
+def test_the_fused_stage_is_part_of_the_configuration_so_earlier_runs_keep_their_bits() -> None:
+    """STGS's fused stage agrees with its generic path to rounding, not bit for bit, so it is an
+    option (``model.fused_stage``): conf/model/stg.yaml turns it on (a new config hash for STGS's
+    runs), while an STGS config without it, and every FreeTimeGS config, keep their path and hash."""
+    from harness.spec.confighash import config_hash, flatten_config
+    from harness.spec.schema import compose, to_train_config
+
+    cam = make_camera()
+    camera = CameraTensors(*camera_tensors(cam, "cpu"), cam.width, cam.height)
+    base = make_model(8)
+    before = {k: v.detach().clone() for k, v in base.params.items()}
+    assert SpacetimeGaussians(before, replace(STG, fused_stage=None)).prepare_cpu(T_EVAL, camera, 0) is None
+    assert SpacetimeGaussians(before, replace(STG, fused_stage=False)).prepare_cpu(T_EVAL, camera, 0) is None
+    assert SpacetimeGaussians(before, STG).prepare_cpu(T_EVAL, camera, 0) is not None
+    stg, stg_old, ftgs = (to_train_config(compose(o)) for o in (
+        ["profile=quick", "model=stg"], ["profile=quick", "model=stg", "model.fused_stage=null"], ["profile=quick"]))
+    assert stg.model.fused_stage is True and stg_old.model.fused_stage is None and ftgs.model.fused_stage is None
+    h = {name: config_hash(flatten_config(c)) for name, c in (("stg", stg), ("stg_old", stg_old), ("ftgs", ftgs))}
+    assert h["stg"] != h["stg_old"]
+    ftgs_flat = flatten_config(ftgs)
+    assert config_hash(ftgs_flat) == config_hash({k: v for k, v in ftgs_flat.items() if k != "model.fused_stage"})
