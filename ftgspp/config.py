@@ -49,6 +49,11 @@ class ModelConfig:
     # mean of the per-camera transforms pinned to the identity, so they cannot drift together away
     # from the uncorrected held-out camera; an option the collapse study measures)
     cc_gauge: str = "free"
+    # the cpu backend's path for this method (``prepare_cpu``, docs/methods.md "Rendering"): True its
+    # fused stage, False the generic path (``at_time``, then the shared projection), None the path its
+    # runs were first made with (FreeTimeGS fused, STGS generic: their bits). conf/model/stg.yaml
+    # sets True; the two paths agree to float rounding, not bit for bit
+    fused_stage: bool | None = None
 
 
 @dataclass
@@ -108,7 +113,13 @@ class StrategyConfig:
 
 @dataclass
 class LearningRates:
-    """Adam learning rates; means and velocity are multiplied by the scene extent."""
+    """Adam learning rates, each × ``scale``; a method's ``EXTENT_SCALED`` ones × the scene extent.
+
+    The fields are the rates every method shares and the options of the built-in methods' own
+    rates. A method declares the rates of its own parameters (``DynamicGaussians.LEARNING_RATES``):
+    FreeTimeGS's and STGS's are repeated here at the same values, so that ``lr.durations=...`` and
+    ``lr.motion=...`` set them and the runs made before keep their config hash; a method added
+    since needs no field here, and ``+lr.method.<key>=<rate>`` sets one of its rates."""
 
     means: float = 1.6e-4
     quats: float = 1e-3
@@ -116,16 +127,19 @@ class LearningRates:
     opacities: float = 5e-2
     sh0: float = 2.5e-3
     shN: float = 1.25e-4
+    # FreeTimeGS's own (ftgspp/methods/freetime.py: FreeTimeGaussians.LEARNING_RATES)
     durations: float = 5e-3
     times: float = 1.6e-4
     velocities: float = 1.6e-3
     gates: float = 1e-3
-    # Spacetime Gaussians (lite), the public code's rates: temporal centre and log temporal scale,
-    # cubic motion (× scene extent: its position rate × 0.5 × 3.5) and rotation speed
+    # Spacetime Gaussians' own (ftgspp/methods/stg.py: SpacetimeGaussians.LEARNING_RATES)
     trbf_center: float = 1e-4
     trbf_scale: float = 0.03
     motion: float = 2.8e-4
     omega: float = 1e-4
+    # any other method's own rates by key, where they differ from its LEARNING_RATES (empty: adds
+    # nothing to a run's flattened config or hash)
+    method: dict[str, float] = field(default_factory=dict)
     cc: float = 1e-3
     means_final_ratio: float = 0.01  # exponential decay of means and velocity over training
     scale: float = 1.0  # global multiplier (stability studies)

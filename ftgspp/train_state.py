@@ -15,15 +15,16 @@ PyTorch modules and gsplat strategies do.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from ftgspp.colour_correction import ColorCorrection
-from ftgspp.config import TrainConfig
+from ftgspp.config import LearningRates, TrainConfig
 from ftgspp.data.scene import Scene
 from ftgspp.errors import InputError
 from ftgspp.init import initialize
@@ -58,30 +59,52 @@ def build_model(cfg: TrainConfig, scene: Scene, device: torch.device, stats: dic
     )
 
 
+def learning_rates(model: DynamicGaussians, lr: LearningRates) -> dict[str, float]:
+    """Each optimised parameter's rate before ``lr.scale`` and the scene extent, by name.
+
+    The rate of a parameter is under its name or the key ``LR_KEYS`` maps it to: the
+    ``LearningRates`` field of that key where there is one (the rates every method shares, and
+    the options of FreeTimeGS's and STGS's own), else ``lr.method[key]``, else the method's
+    ``LEARNING_RATES[key]``. A key with none of them, or an ``lr.method`` key that is a field or
+    that the method does not use, is a one-line ``InputError``."""
+    fields = {f.name for f in dataclasses.fields(lr) if f.type in ("float", float)}
+    keys = {name: model.LR_KEYS.get(name, name) for name in model.params if name not in model.frozen()}
+    for key in lr.method:
+        if key in fields:
+            raise InputError(f"lr.method.{key}", f"'{key}' has an option of its own: set lr.{key}")
+        if key not in keys.values():
+            raise InputError(f"lr.method.{key}", f"{type(model).__name__} has no rate '{key}'"
+                             f" (its parameters' rates: {', '.join(sorted(set(keys.values())))})")
+    rates = {}
+    for name, key in keys.items():
+        if key in fields:
+            rates[name] = getattr(lr, key)
+        elif key in lr.method or key in model.LEARNING_RATES:
+            rates[name] = lr.method.get(key, model.LEARNING_RATES.get(key))
+        else:
+            raise InputError("lr", f"no learning rate for the parameter '{name}' of {type(model).__name__}"
+                             f" (no '{key}' in its LEARNING_RATES, nor in LearningRates; or map it in LR_KEYS)")
+    return rates
+
+
 def make_optimizer(
     model: DynamicGaussians, cc: ColorCorrection | None, cfg: TrainConfig, extent: float
 ) -> torch.optim.Adam:
     """One Adam over every parameter group (``group["name"]`` says which), fused on CPU and CUDA.
 
-    Learning rates are ``lr.<key> × lr.scale``, the key being the parameter's name or the one the
-    method maps it to (``LR_KEYS``), × the scene extent for the method's ``EXTENT_SCALED``
-    parameters (FreeTimeGS: means and velocities); ``group["decays"]`` marks the groups whose
-    rate decays over training (``DECAYING``). The method's ``frozen()`` parameters are left out.
-    The colour correction's group gets gradients only once it is switched on; Adam skips
-    parameters without a gradient, so its moments start then.
+    Learning rates are ``learning_rates`` × ``lr.scale``, × the scene extent for the method's
+    ``EXTENT_SCALED`` parameters (FreeTimeGS: means and velocities); ``group["decays"]`` marks the
+    groups whose rate decays over training (``DECAYING``). The method's ``frozen()`` parameters
+    are left out. The colour correction's group gets gradients only once it is switched on; Adam
+    skips parameters without a gradient, so its moments start then.
     """
-    lrs = asdict(cfg.lr)
+    rates = learning_rates(model, cfg.lr)
     groups = []
-    frozen = model.frozen()
     for name, p in model.params.items():
-        if name in frozen:
+        if name not in rates:  # frozen
             p.requires_grad_(False)
             continue
-        key = model.LR_KEYS.get(name, name)
-        if key not in lrs:
-            raise InputError("lr", f"no learning rate for the parameter '{name}' of {type(model).__name__}"
-                             f" (LearningRates has no '{key}'; map it in LR_KEYS)")
-        lr = lrs[key] * cfg.lr.scale * (extent if name in model.EXTENT_SCALED else 1.0)
+        lr = rates[name] * cfg.lr.scale * (extent if name in model.EXTENT_SCALED else 1.0)
         groups.append({"params": [p], "lr": lr, "initial_lr": lr, "name": name, "decays": name in model.DECAYING})
     if cc is not None:
         lr = cfg.lr.cc * (cfg.lr.scale if cfg.lr.cc_scaled else 1.0)

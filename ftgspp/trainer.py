@@ -239,6 +239,8 @@ def _loop(cfg: TrainConfig, scene: Scene, st: TrainState, tracker: Tracker, out_
         bg = torch.rand(3, device=device) if cfg.random_background else background
         out, g = render_view(st.model, scene.cameras[cam_idx], float(scene.times[frame]), sh_degree_at(cfg, it),
                              background=bg, backend=cfg.backend)
+        if it == start:  # which path rendered (a method's fused cpu stage or the generic one): its bits differ
+            tracker.log_params({"render_stage": out.stage})
         use_cc = st.cc is not None and step > cc_start(cfg)
         image = st.cc(out.image, train_slot[cam_idx]) if use_cc else out.image
         terms = loss_terms(cfg, st.model, g, image, gt, st.cc if use_cc else None, lpips_net)

@@ -1,8 +1,8 @@
 """Render a model (any ``DynamicGaussians`` method) from a ``Camera`` at a time t.
 
-Glue between the model (4D parameters), the colour model and the rasterizer backends. For
-FreeTimeGS on the ``cpu`` backend, time evaluation, SH colour and projection run as one
-fused Numba node (``render.prepare``, the methods whose ``FUSED_CPU`` is set); every other
+Glue between the model (4D parameters), the colour model and the rasterizer backends. On the
+``cpu`` backend a method that has a fused stage of its own (``prepare_cpu``: time evaluation,
+SH colour and projection as one Numba node, ``render.prepare``) renders through it; every other
 method and backend composes the PyTorch modules (``model.at_time``, ``render.sh.eval_sh``
 unless the method gives RGB, ``render.project``), and ``reference`` stays the pure-autograd
 oracle of both.
@@ -15,6 +15,7 @@ import torch
 from ftgspp.data.scene import Camera
 from ftgspp.methods.base import DynamicGaussians, GaussiansAt
 from ftgspp.render import RenderOutput, render, resolve_backend
+from ftgspp.render.contract import CameraTensors, Projected
 from ftgspp.render.sh import eval_sh
 
 
@@ -40,8 +41,12 @@ def render_view(
     means = model.params["means"]
     viewmat, K, centre = camera_tensors(cam, means.device)
     name = resolve_backend(backend, means.device)
-    if model.FUSED_CPU and name == "cpu" and means.device.type == "cpu" and means.dtype == torch.float32:
-        return _render_view_fused(model, cam, t, sh_degree, background, colors, viewmat, K, centre)
+    if name == "cpu" and means.device.type == "cpu" and means.dtype == torch.float32:
+        camera = CameraTensors(viewmat, K, centre, cam.width, cam.height)
+        fused = model.prepare_cpu(t, camera, sh_degree if colors is None else 0)
+        if fused is not None:
+            projected, g = fused
+            return _rasterize_cpu(projected, colors, cam, background), g
     g = model.at_time(t)
     if colors is None and g.colors is not None:  # the method's own view-independent RGB
         colors = g.colors
@@ -54,29 +59,15 @@ def render_view(
     return out, g
 
 
-def _render_view_fused(
-    model: DynamicGaussians,
-    cam: Camera,
-    t: float,
-    sh_degree: int,
-    background: torch.Tensor | None,
-    colors: torch.Tensor | None,
-    viewmat: torch.Tensor,
-    K: torch.Tensor,
-    centre: torch.Tensor,
-) -> tuple[RenderOutput, GaussiansAt]:
-    """The ``cpu`` path: fused prepare node, then the Numba rasterizer."""
+def _rasterize_cpu(
+    p: Projected, colors: torch.Tensor | None, cam: Camera, background: torch.Tensor | None
+) -> RenderOutput:
+    """The ``cpu`` rasterizer on a fused stage's projected Gaussians (``colors`` instead of theirs)."""
     from ftgspp.render.cpu import rasterize
-    from ftgspp.render.prepare import prepare
 
-    p, cfg = model.params, model.cfg
-    prep = prepare(p, t, viewmat, K, centre, cam.width, cam.height, sh_degree if colors is None else 0,
-                   cfg.max_duration, cfg.gate, cfg.gate_gamma)  # fmt: skip
-    means2d = prep.means2d
+    means2d = p.means2d
     if means2d.requires_grad:
         means2d.retain_grad()
-    image, alpha, depth = rasterize(means2d, prep.conics, prep.colors if colors is None else colors, prep.opacities,
-                                    prep.depths, prep.radii, cam.width, cam.height, background)  # fmt: skip
-    g = GaussiansAt(means=prep.means, quats=p["quats"], opacities=prep.opacities, temporal=prep.temporal,
-                    log_scales=p["scales"], sh0=p["sh0"], shN=p["shN"])  # fmt: skip
-    return RenderOutput(image, alpha, depth, means2d, prep.radii, prep.depths), g
+    image, alpha, depth = rasterize(means2d, p.conics, p.colors if colors is None else colors, p.opacities, p.depths,
+                                    p.radii, cam.width, cam.height, background)  # fmt: skip
+    return RenderOutput(image, alpha, depth, means2d, p.radii, p.depths, stage="fused")

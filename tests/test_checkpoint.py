@@ -11,7 +11,7 @@ from ftgspp.checkpoint import load_colour_correction, load_run, save_config, sav
 from ftgspp.colour_correction import ColorCorrection
 from ftgspp.config import TrainConfig
 from ftgspp.errors import InputError
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods.freetime import FreeTimeGaussians
 
 
 def test_a_saved_run_loads_back_bit_for_bit(tmp_path):

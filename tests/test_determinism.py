@@ -134,7 +134,8 @@ def test_a_failing_child_shows_its_output_and_its_last_line_in_the_error(tiny_sc
 
 def test_a_dispatch_run_trains_in_a_child_with_that_kernel_set(tiny_scene_dir, tiny_scene, tmp_path):
     """dispatch=baseline: the child runs torch's baseline kernels; the parent gets its metrics,
-    loss curve, artifacts and determinism domain, and the bits differ from the native run."""
+    params (which render stage ran), loss curve, artifacts and determinism domain, and the bits
+    differ from the native run."""
     from test_trainer import small_cfg
     from test_trainer_parts import Recorder
 
@@ -146,7 +147,11 @@ def test_a_dispatch_run_trains_in_a_child_with_that_kernel_set(tiny_scene_dir, t
         def __init__(self) -> None:
             super().__init__()
             self.tags: dict = {}
+            self.params: dict = {}
             self.artifacts: list = []
+
+        def log_params(self, params):
+            self.params.update(params)
 
         def set_tags(self, tags):
             self.tags.update(tags)
@@ -159,6 +164,7 @@ def test_a_dispatch_run_trains_in_a_child_with_that_kernel_set(tiny_scene_dir, t
                   tiny_scene, rec)
     assert other.status == "FINISHED" and rec.tags["determinism.torch_cpu_capability"] == "DEFAULT"
     assert any("loss" in m for _, m in rec.metrics) and any(where == "renders" for _, where in rec.artifacts)
+    assert rec.params["render_stage"] == "fused" and int(rec.params["n_gaussians_init"]) > 0  # FreeTimeGS on cpu
     a, b = params(tmp_path / "native"), params(tmp_path / "baseline")
     assert not same_bits(a, b) and abs(other.metrics["psnr"] - native.metrics["psnr"]) < 0.5
 

@@ -25,7 +25,7 @@ from ftgspp.diagnostics.flow_colors import color_wheel, flow_to_rgb
 from ftgspp.diagnostics.lifetimes import lifetime_fractions, lifetime_histogram, subset_model
 from ftgspp.diagnostics.motion import composite, motion_error, pixel_velocities, velocity_map, xt_slice
 from ftgspp.errors import InputError
-from ftgspp.model import FreeTimeGaussians, duration_to_param
+from ftgspp.methods.freetime import FreeTimeGaussians, duration_to_param
 
 W, H, FOCAL = 64, 48, 60.0
 FPS = 10.0

@@ -8,7 +8,7 @@ import torch
 from scipy.optimize import brentq
 
 from ftgspp.config import InitConfig, ModelConfig
-from ftgspp.model import FreeTimeGaussians, duration_to_param
+from ftgspp.methods.freetime import FreeTimeGaussians, duration_to_param
 
 
 def make_model(n=4, **cfg):

@@ -97,3 +97,43 @@ def test_widened_features_leave_hand_chosen_features_and_avx2_alone():
     assert widened_features({"NUMBA_CPU_NAME": "znver4", "NUMBA_CPU_FEATURES": "+avx512f"}) is None
     # the lanes follow the named CPU when the features only change its tuning
     assert vector_lanes({"NUMBA_CPU_NAME": "sapphirerapids", "NUMBA_CPU_FEATURES": PREFER_256}) == 16
+
+
+_CALLER = """
+from numba import njit
+from ftgspp.runtime.jit import JIT
+from callee import helper
+
+
+@njit(**JIT)
+def kernel(x):
+    return helper(x)
+"""
+_RUN_CALLER = """
+import sys
+sys.path.insert(0, sys.argv[1])
+import callee, caller
+print(caller.kernel(1.0), type(caller.kernel._cache._impl.locator).__name__,
+      type(callee.helper._cache._impl.locator).__name__)
+"""
+
+
+def test_a_cached_kernel_recompiles_when_a_function_it_calls_from_another_file_changes(tmp_path):
+    """Numba stamps a cached kernel with its own file only: without ``jit.stamp_called_files`` a
+    kernel calling ``helper`` from another file kept running the old ``helper`` from its cache."""
+    (tmp_path / "caller.py").write_text(_CALLER)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}  # the cache in tmp_path/__pycache__
+
+    def run(helper_body: str) -> list[str]:
+        (tmp_path / "callee.py").write_text(
+            f"from numba import njit\nfrom ftgspp.runtime.jit import JIT\n\n\n@njit(**JIT)\ndef helper(x):\n"
+            f"    return {helper_body}\n")  # fmt: skip
+        r = subprocess.run([sys.executable, "-c", _RUN_CALLER, str(tmp_path)], env=env, capture_output=True,
+                           text=True)  # fmt: skip
+        assert r.returncode == 0, r.stderr[-2000:]
+        return r.stdout.split()
+
+    assert run("x * 2.0") == ["2.0", "CalledFilesInTreeCacheLocator", "InTreeCacheLocator"]
+    assert run("x * 2.0")[0] == "2.0"  # from the cache
+    assert run("x * 3.0")[0] == "3.0"  # not the cached 2.0
+    assert any((tmp_path / "__pycache__").glob("caller.kernel-*.nbi"))

@@ -24,7 +24,7 @@ from ftgspp.diagnostics.lifetimes import (
     role_switch_score,
 )
 from ftgspp.diagnostics.motion import composite, static_flicker
-from ftgspp.model import duration_to_param
+from ftgspp.methods.freetime import duration_to_param
 
 
 def test_partition_scores_by_hand():

@@ -26,7 +26,7 @@ from ftgspp.data.synthetic.build import generate
 from ftgspp.errors import InputError
 from ftgspp.evaluate import evaluate
 from ftgspp.image_metrics import lpips_distance, ssim_same
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods.freetime import FreeTimeGaussians
 from ftgspp.train_state import make_optimizer, scene_extent, set_learning_rates
 from ftgspp.trainer import loss_terms, sh_degree_at, train
 

@@ -19,7 +19,8 @@ from ftgspp.bench.stages import stage_model
 from ftgspp.bench.timing import time_backend
 from ftgspp.image_metrics import ssim_same
 from ftgspp.render import cpu
-from ftgspp.render.prepare import prepare
+from ftgspp.methods.freetime_fused import prepare
+from ftgspp.render.contract import CameraTensors
 m = torch.tensor([[8.0, 8.0], [20.0, 9.0]], requires_grad=True)
 args = (m, torch.tensor([[0.1, 0.0, 0.1]] * 2), torch.rand(2, 3), torch.rand(2), torch.ones(2))
 scene = random_scene(4, 32, 24)
@@ -27,7 +28,7 @@ model = stage_model(scene, 0)
 t0 = time.perf_counter()
 out = cpu.rasterize(*args, torch.tensor([6, 6]), 32, 24)
 sum(o.sum() for o in out).backward()
-p = prepare(model.params, 0.5, scene["viewmat"], scene["K"], torch.zeros(3), 32, 24, 3, 1.0, True, 20.0)
+p = prepare(model.params, 0.5, CameraTensors(scene["viewmat"], scene["K"], torch.zeros(3), 32, 24), 3, 1.0, True, 20.0)
 (p.means2d.sum() + p.colors.sum()).backward()
 (1 - ssim_same(torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3))).backward()
 first_call = time.perf_counter() - t0

@@ -30,7 +30,7 @@ from typing import Any, Callable
 # (another backend, an older module layout) is skipped, and its time lands in its parent.
 SEAMS: tuple[tuple[str, str], ...] = (
     ("data (frame lookup)", "ftgspp.data.scene:Scene.image"),
-    ("model at time t", "ftgspp.model:FreeTimeGaussians.at_time"),
+    ("model at time t", "ftgspp.methods.freetime:FreeTimeGaussians.at_time"),
     ("model at time t", "ftgspp.methods.stg:SpacetimeGaussians.at_time"),
     ("SH colour", "ftgspp.view:eval_sh"),
     ("projection", "ftgspp.render.project:project"),

@@ -15,14 +15,14 @@ import torch
 from torch import Tensor
 
 if TYPE_CHECKING:
-    from ftgspp.model import FreeTimeGaussians
+    from ftgspp.methods.freetime import FreeTimeGaussians
 
 
 def stage_model(scene: dict[str, Any], seed: int) -> "FreeTimeGaussians":
     """A FreeTimeGS++ model (gate on, max_duration 1 s, SH degree 3) whose Gaussians at t = 0.5
     are ``scene``'s 3D Gaussians (the bench camera sits at the world origin)."""
     from ftgspp.config import ModelConfig
-    from ftgspp.model import FreeTimeGaussians
+    from ftgspp.methods.freetime import FreeTimeGaussians
 
     g = torch.Generator().manual_seed(seed + 2)
     n = scene["means"].shape[0]
@@ -51,13 +51,15 @@ def time_stages(scene: dict[str, Any], repeats: int, seed: int = 0) -> dict[str,
     ``ssim_loss``: 1 - SSIM of a rendered-size image, grouped ``conv2d`` vs the Numba kernels.
     """
     from ftgspp.image_metrics import SSIM_WINDOW, _nchw, _ssim_map, ssim_same
-    from ftgspp.render.prepare import prepare
+    from ftgspp.methods.freetime_fused import prepare
+    from ftgspp.render.contract import CameraTensors
     from ftgspp.render.project import project
     from ftgspp.render.sh import eval_sh
 
     model = stage_model(scene, seed)
     params, width, height = model.params, scene["width"], scene["height"]
     viewmat, K, centre = scene["viewmat"], scene["K"], torch.zeros(3)
+    camera = CameraTensors(viewmat, K, centre, width, height)
     g = torch.Generator().manual_seed(seed + 3)
     n = len(model)
     cot = [torch.randn(n, k, generator=g) for k in (2, 3, 3)] + [torch.randn(n, generator=g) for _ in range(2)]
@@ -73,7 +75,7 @@ def time_stages(scene: dict[str, Any], repeats: int, seed: int = 0) -> dict[str,
         weighted((means2d, conics, colors, at.opacities, depths)).backward()
 
     def fused_prepare() -> None:
-        p = prepare(params, 0.5, viewmat, K, centre, width, height, 3, 1.0, True, model.cfg.gate_gamma)
+        p = prepare(params, 0.5, camera, 3, 1.0, True, model.cfg.gate_gamma)
         weighted((p.means2d, p.conics, p.colors, p.opacities, p.depths)).backward()
 
     pred = torch.rand(height, width, 3, generator=g).requires_grad_(True)

@@ -4,8 +4,8 @@ The kernels compile on first use (about a minute on an idle 2-core machine) and 
 disk. A study would otherwise start with every worker compiling them at once and printing
 nothing for minutes; ``study run`` instead checks ``kernels_cached()`` and, when the cache is
 cold, says so and runs ``python -m ftgspp.bench.warmup`` first, which calls every kernel once
-on tiny inputs (the rasterizer forward and backward, the fused prepare node, the SSIM loss, the
-colour-aligned PSNR's fit, the relocation statistics).
+on tiny inputs (the rasterizer forward and backward, the fused prepare nodes of FreeTimeGS and
+STGS, the SSIM loss, the colour-aligned PSNR's fit, the relocation statistics).
 
     python -m ftgspp.bench.warmup        # prints the seconds it took
 """
@@ -22,11 +22,13 @@ COLD_COMPILE_S = 57.0
 
 def _dispatchers() -> list:
     from ftgspp import colour_alignment, ssim_cpu
-    from ftgspp.render import cpu_kernels, prepare_kernels
+    from ftgspp.methods import freetime_fused, stg_fused
+    from ftgspp.render import cpu_kernels
     from ftgspp.strategy import relocate
 
     return [cpu_kernels.bin_gaussians, cpu_kernels.render_forward, cpu_kernels.render_backward,
-            cpu_kernels.reduce_pair_grads, prepare_kernels.prepare_forward, prepare_kernels.prepare_backward,
+            cpu_kernels.reduce_pair_grads, freetime_fused.prepare_forward, freetime_fused.prepare_backward,
+            stg_fused.prepare_forward, stg_fused.prepare_backward,
             ssim_cpu.ssim_forward, ssim_cpu.ssim_backward, colour_alignment.normal_equations,
             colour_alignment.cholesky_solve, colour_alignment.apply_affine, relocate._add_visible]
 
@@ -48,9 +50,13 @@ def warm_up() -> float:
     from ftgspp.bench.random_scene import random_scene
     from ftgspp.bench.stages import stage_model
     from ftgspp.colour_alignment import colour_aligned_np
+    from ftgspp.config import InitConfig, ModelConfig
     from ftgspp.image_metrics import ssim_same
+    from ftgspp.methods.freetime_fused import prepare
+    from ftgspp.methods.stg import SpacetimeGaussians
+    from ftgspp.methods.stg_fused import prepare as stg_prepare
     from ftgspp.render import cpu
-    from ftgspp.render.prepare import prepare
+    from ftgspp.render.contract import CameraTensors
     from ftgspp.strategy import relocate
 
     t0 = time.perf_counter()
@@ -59,9 +65,13 @@ def warm_up() -> float:
                         torch.ones(2), torch.tensor([[6, 6], [6, 6]]), 32, 24)  # radii [N, 2]
     sum(o.sum() for o in out).backward()
     scene = random_scene(4, 32, 24)
-    p = prepare(stage_model(scene, 0).params, 0.5, scene["viewmat"], scene["K"], torch.zeros(3), 32, 24, 3, 1.0,
-                True, 20.0)
+    camera = CameraTensors(scene["viewmat"], scene["K"], torch.zeros(3), 32, 24)
+    p = prepare(stage_model(scene, 0).params, 0.5, camera, 3, 1.0, True, 20.0)
     (p.means2d.sum() + p.colors.sum()).backward()
+    stg = SpacetimeGaussians.from_points(np.zeros((4, 3)), np.full((4, 3), 0.5), np.zeros(4), np.zeros((4, 3)),
+                                         np.ones(4), ModelConfig(name="stg", method="stg", sh_degree=0), InitConfig())
+    q = stg_prepare(stg.params, 0.5, camera)
+    (q.means2d.sum() + q.colors.sum()).backward()
     (1 - ssim_same(torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3))).backward()
     colour_aligned_np(np.random.default_rng(0).random((64, 3)), np.random.default_rng(1).random((64, 3)))
     relocate._add_visible(np.zeros(2, np.float32), np.zeros(2, np.float32), np.ones(2, np.float32),

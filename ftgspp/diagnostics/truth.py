@@ -24,7 +24,7 @@ import torch
 
 from ftgspp.config import ModelConfig
 from ftgspp.data.scene import Scene
-from ftgspp.model import SH_C0, FreeTimeGaussians
+from ftgspp.methods.freetime import SH_C0, FreeTimeGaussians
 
 GAUSSIANS_FILE = "gaussians.npz"
 FOREVER_S = 1.0e6  # temporal standard deviation of a true Gaussian: φ(t) = 1 to float precision on any clip

@@ -22,7 +22,7 @@ __all__ = ["DynamicGaussians", "GaussiansAt", "method_class", "method_names", "r
 
 # built-in methods, imported on first use
 BUILTIN = {
-    "freetime": "ftgspp.model:FreeTimeGaussians",  # FreeTimeGS and FreeTimeGS++ (model=ftgs, model=ftgspp)
+    "freetime": "ftgspp.methods.freetime:FreeTimeGaussians",  # FreeTimeGS and FreeTimeGS++ (model=ftgs, model=ftgspp)
     "stg": "ftgspp.methods.stg:SpacetimeGaussians",  # Spacetime Gaussians, lite (model=stg)
 }
 _REGISTERED: dict[str, type] = {}

@@ -19,10 +19,14 @@ What every method supplies:
 - ``lifetimes(θ)``: how long ``sigmoid(o) φ(t)`` stays at or above θ, seconds.
 - ``velocities_at(t)``: d/dt of the positions (the motion diagnostics).
 - ``regularizers(g, weights)``: the method's loss terms besides the photometric loss.
-- Class attributes for the optimiser: which learning-rate key each parameter uses
-  (``LR_KEYS``, default its own name in ``LearningRates``), which rates are multiplied by the
+- Class attributes for the optimiser: the method's own learning rates (``LEARNING_RATES``, by
+  key; the rates every method shares are ``LearningRates``'), which key each parameter's rate
+  is under (``LR_KEYS``, default the parameter's name), which rates are multiplied by the
   scene extent (``EXTENT_SCALED``) and which decay over training (``DECAYING``);
   ``frozen()`` names parameters that are not optimised.
+- Optionally ``prepare_cpu(t, camera, sh_degree)``: a fused stage of its own for the ``cpu``
+  backend (time evaluation, colour and projection in Numba kernels, ``ftgspp.render.prepare``);
+  without one, every backend renders ``at_time`` through the generic PyTorch projection.
 
 What relocation copies (``ftgspp.strategy``): every parameter of a dead Gaussian is
 overwritten by its source's; the MCMC rule then rewrites ``opacities`` and ``scales``. So
@@ -42,6 +46,7 @@ import torch
 from torch import nn
 
 from ftgspp.config import InitConfig, LossConfig, ModelConfig
+from ftgspp.render.contract import CameraTensors, Projected
 
 REQUIRED = ("means", "quats", "scales", "opacities")  # the parameters the trainer itself touches
 
@@ -79,12 +84,13 @@ class GaussiansAt:
 class DynamicGaussians(nn.Module):
     """Per-Gaussian parameters of one dynamic method and their meaning at a time t."""
 
-    LR_KEYS: ClassVar[dict[str, str]] = {}  # parameter -> LearningRates field, where the names differ
+    # the method's own rates by key (a parameter's name, or the key LR_KEYS maps it to), before
+    # lr.scale; a LearningRates field of the same key, where there is one, is the option that sets
+    # it, else +lr.method.<key>=<rate> (ftgspp.train_state.learning_rates)
+    LEARNING_RATES: ClassVar[dict[str, float]] = {}
+    LR_KEYS: ClassVar[dict[str, str]] = {}  # parameter -> the key of its rate, where the names differ
     EXTENT_SCALED: ClassVar[tuple[str, ...]] = ("means",)  # learning rate x scene extent
     DECAYING: ClassVar[tuple[str, ...]] = ("means",)  # rate decays to lr.means_final_ratio x over training
-    # rendered by the cpu backend's fused FreeTimeGS node (ftgspp.render.prepare), which reads the
-    # parameters itself: a subclass of FreeTimeGaussians that changes what they mean sets it False
-    FUSED_CPU: ClassVar[bool] = False
 
     def __init__(self, params: dict[str, torch.Tensor], cfg: ModelConfig) -> None:
         super().__init__()
@@ -157,3 +163,16 @@ class DynamicGaussians(nn.Module):
     def frozen(self) -> set[str]:
         """Parameters left out of the optimiser."""
         return set()
+
+    # --- optional: a fused stage on the cpu backend ---------------------------------------
+    def prepare_cpu(self, t: float, camera: CameraTensors, sh_degree: int) -> tuple[Projected, GaussiansAt] | None:
+        """The Gaussians at time ``t`` (seconds) projected into ``camera`` and coloured as the generic
+        path colours them (SH of degree ``sh_degree`` along the viewing direction, or the method's
+        RGB), by a fused stage of the method's own, and the ``GaussiansAt`` they came from. ``view.render_view`` asks on
+        the ``cpu`` backend, for float32 parameters on the CPU; None (the default) renders
+        ``at_time`` through the generic path (``render.project`` and autograd). A method's kernels
+        evaluate its time formulas and hand each block of Gaussians to the shared colour and
+        projection (``ftgspp.render.prepare``); their results must agree with the generic path to
+        float32 rounding, gradients included (not bit for bit: the trainer records which path
+        rendered a run, its param ``render_stage``)."""
+        return None

@@ -18,6 +18,8 @@ budget under the harness's relocation, so methods are compared at equal size); t
 opacity's learning-rate decay of μτ (held constant) and the renderer's batch of two views per
 step. Time is in seconds; the public code's is normalised to the clip, the same for the 1-s
 clips the quick profile trains on. Colour is composited as given, without clamping, as there.
+On the ``cpu`` backend it renders through a fused stage of its own (``prepare_cpu``:
+``stg_fused.py``, its time evaluation in Numba before the shared projection).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import torch
 from ftgspp.config import InitConfig, ModelConfig
 from ftgspp.errors import InputError
 from ftgspp.methods.base import DynamicGaussians, GaussiansAt
+from ftgspp.render.contract import CameraTensors, Projected
 
 INIT_OPACITY = 0.1
 INIT_LOG_TIME_SCALE = 0.0  # exp(0) = 1 s
@@ -39,6 +42,10 @@ INIT_LOG_TIME_SCALE = 0.0  # exp(0) = 1 s
 class SpacetimeGaussians(DynamicGaussians):
     """Temporal-RBF opacity, cubic motion and linear rotation around each Gaussian's own time."""
 
+    # the public code's rates: temporal centre and log temporal scale, cubic motion (x scene extent: its
+    # position rate x 0.5 x 3.5) and rotation speed; LearningRates repeats them under these keys (lr.motion=...)
+    LEARNING_RATES: ClassVar[dict[str, float]] = {"trbf_center": 1e-4, "trbf_scale": 0.03, "motion": 2.8e-4,
+                                                  "omega": 1e-4}  # fmt: skip
     LR_KEYS: ClassVar[dict[str, str]] = {"rgb": "sh0"}  # the colour's rate is the SH DC rate (2.5e-3, as there)
     EXTENT_SCALED: ClassVar[tuple[str, ...]] = ("means", "motion")
     DECAYING: ClassVar[tuple[str, ...]] = ("means",)
@@ -94,7 +101,31 @@ class SpacetimeGaussians(DynamicGaussians):
         m = self.params["motion"]
         return m[:, 0:3] + 2.0 * m[:, 3:6] * dt + 3.0 * m[:, 6:9] * dt**2
 
+    def prepare_cpu(self, t: float, camera: CameraTensors, sh_degree: int) -> tuple[Projected, GaussiansAt] | None:
+        """The fused stage (``stg_fused.prepare``): exactly ``at_time`` and the projection, colour the
+        RGB as given (``sh_degree`` does not apply). None for a subclass that redefines what the
+        parameters mean at t (``_FUSED_FORMULAS``): the kernel knows only these formulas, so it
+        renders through the generic path. Only with ``model.fused_stage=true`` (conf/model/stg.yaml):
+        STGS's runs before this stage went through the generic path, and a run keeps its bits."""
+        if not self.cfg.fused_stage:
+            return None
+        if any(getattr(type(self), name) is not getattr(SpacetimeGaussians, name) for name in _FUSED_FORMULAS):
+            return None
+        from ftgspp.methods.stg_fused import prepare  # Numba: imported on the first cpu render
+
+        p = self.params
+        prep = prepare(p, t, camera)
+        # quat(t) is the projection's business inside the kernel; this one is for the caller, as at_time's
+        g = GaussiansAt(means=prep.means, quats=p["quats"] + p["omega"] * self._dt(t)[:, None],
+                        opacities=prep.opacities, temporal=prep.temporal, log_scales=p["scales"],
+                        colors=p["rgb"])  # fmt: skip
+        return prep.projected, g
+
     def lifetimes(self, threshold: float) -> torch.Tensor:
         """sigmoid(o) exp(−(Δt/s)²) ≥ θ for |Δt| ≤ s √log(o/θ): Δt(θ) = 2 s √log(o/θ), 0 when o ≤ θ."""
         ratio = torch.clamp(self.base_opacity() / threshold, min=1.0)
         return 2.0 * torch.exp(self.params["trbf_scale"]) * torch.sqrt(torch.log(ratio))
+
+
+# what the fused kernel computes itself: a subclass redefining one of these renders through at_time
+_FUSED_FORMULAS = ("at_time", "temporal_opacity", "_dt", "base_opacity")

@@ -10,9 +10,11 @@ they composite the projected 2D Gaussians:
   ``gsplat_adapter.py``; checked against ``reference`` on CPU by running gsplat's Python
   code over torch stand-ins of its CUDA ops, ``tests/render/gsplat_standins.py``).
 
-For a ``FreeTimeGaussians`` model, ``view.render_view`` on the ``cpu`` backend replaces
-time evaluation, SH colour and this projection by one fused Numba node (``prepare.py``,
-same numbers to float32 rounding) before the ``cpu`` rasterizer.
+A method may bring a fused stage of its own for the ``cpu`` backend (its time evaluation in
+Numba kernels that hand each block of Gaussians to the shared SH colour and projection of
+``prepare_kernels.py``, run as one autograd node by ``prepare.py``; same numbers to float32
+rounding); ``view.render_view`` then uses it before the ``cpu`` rasterizer instead of this
+projection. This package knows no method.
 
 ``backend="auto"`` picks gsplat on CUDA tensors and cpu otherwise (falling back to the
 reference when a backend is not installed). ``resolve_backend`` is where gsplat's

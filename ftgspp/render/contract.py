@@ -42,7 +42,7 @@ from here (never from the package ``__init__``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import torch
 
@@ -67,6 +67,31 @@ class RenderOutput:
     means2d: torch.Tensor  # [N, 2] projected centres in pixels; .grad set after backward
     radii: torch.Tensor  # [N, 2] integer pixel radius per axis (x, y), 0 = culled
     depths: torch.Tensor  # [N] camera-space depth of each centre
+    # how the Gaussians were evaluated and projected: "generic" (at_time, render.project) or "fused"
+    # (the method's fused cpu stage, render.prepare); the trainer records it with the run
+    stage: str = "generic"
+
+
+@dataclass(frozen=True)
+class CameraTensors:
+    """One camera as the renderers take it: float32 tensors on the model's device."""
+
+    viewmat: torch.Tensor  # [4, 4] world-to-camera
+    K: torch.Tensor  # [3, 3] OpenCV intrinsics (pixel centres at integers)
+    centre: torch.Tensor  # [3] camera centre (world)
+    width: int
+    height: int
+
+
+class Projected(NamedTuple):
+    """Gaussians projected into one camera: what a backend's ``rasterize`` takes besides the image size."""
+
+    means2d: torch.Tensor  # [N, 2] pixels (zeros where culled)
+    conics: torch.Tensor  # [N, 3] upper triangle of the inverse 2D covariance (zeros where culled)
+    colors: torch.Tensor  # [N, D]
+    opacities: torch.Tensor  # [N] in [0, 1]
+    depths: torch.Tensor  # [N] camera-space z of the centres
+    radii: torch.Tensor  # [N, 2] int pixel radius per axis, 0 = culled
 
 
 # The signature every backend's ``rasterize`` has (see the module docstring).

@@ -1,37 +1,50 @@
-"""Fused per-Gaussian stage of the ``cpu`` backend: time evaluation + SH colour + EWA projection.
+"""The fused per-Gaussian stage of the ``cpu`` backend, for the methods that supply one.
 
-One autograd node replaces ``FreeTimeGaussians.at_time``, ``sh.eval_sh`` and
-``project.project`` (dozens of small PyTorch operations and their autograd bookkeeping) with
-one Numba forward kernel and one hand-written backward kernel (``prepare_kernels``). Outputs
-agree with that PyTorch path to float32 rounding; gradients reach every model parameter.
+A method may render on the ``cpu`` backend through a fused stage of its own (its
+``prepare_cpu``): one Numba forward kernel and one hand-written backward kernel that evaluate its
+Gaussians at time t, colour them (by SH along the viewing direction, or the method's own RGB) and
+project them, where the generic path runs its ``at_time``, ``sh.eval_sh`` and ``project.project``
+as dozens of small PyTorch operations and their autograd bookkeeping. The method's kernels
+evaluate time; the projection, the SH colour and their chain rule are the shared block functions
+of ``prepare_kernels``. This module runs such a pair as one autograd node:
 
-    from ftgspp.render.prepare import prepare
-    p = prepare(model.params, t, viewmat, K, centre, W, H, sh_degree, model.cfg)
-    image, alpha, depth = cpu.rasterize(p.means2d, p.conics, p.colors, p.opacities, p.depths, p.radii, W, H)
+    kernels = FusedKernels(forward, backward)
+    p = fused_prepare(kernels, [params[k] for k in NAMES], settings, camera)
+    image, alpha, depth = cpu.rasterize(*p.projected, W, H)
 
-Backward results are bitwise identical across runs and Numba thread counts (no reductions
-across Gaussians). The inputs are kept with ``save_for_backward``, so editing a parameter in
-place between forward and backward raises PyTorch's usual error instead of giving wrong
-gradients.
+The kernel pair's contract (float32 NumPy arrays in and out, the parameters in one order):
+
+    forward(*params, view [4, 4], centre [3], cam [N_CAM], *settings)
+        -> means2d [N, 2], conics [N, 3], colors [N, D], opacities [N], depths [N],
+           radii [N, 2] int32, temporal [N] (phi(t)), means [N, 3] (the centres at time t)
+    backward(*params, view, centre, cam, *settings, radii, and the cotangent of every forward
+             output but radii, in order) -> the gradient of every parameter, in order
+
+The inputs are kept with ``save_for_backward``, so editing a parameter in place between forward
+and backward raises PyTorch's usual error instead of giving wrong gradients.
 """
 
 from __future__ import annotations
 
 import functools
-from typing import Mapping, NamedTuple
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from ftgspp.render import prepare_kernels as _pk
-from ftgspp.render.contract import EPS2D
+from ftgspp.render.contract import EPS2D, CameraTensors, Projected
 from ftgspp.render.cpu import f32_array
 from ftgspp.render.project import tangent_limits
 from ftgspp.runtime.jit import configure_numba
 
-# Model parameters the kernel reads, in kernel argument order.
-PARAM_NAMES = ("means", "velocities", "times", "durations", "scales", "quats", "opacities", "gates", "sh0", "shN")
+
+class FusedKernels(NamedTuple):
+    """A method's fused stage: its Numba forward and backward kernels (the module docstring)."""
+
+    forward: Callable[..., tuple]
+    backward: Callable[..., tuple]
 
 
 class Prepared(NamedTuple):
@@ -39,12 +52,17 @@ class Prepared(NamedTuple):
 
     means2d: Tensor  # [N, 2] pixels (zeros where culled)
     conics: Tensor  # [N, 3] upper triangle of the inverse 2D covariance (zeros where culled)
-    colors: Tensor  # [N, D] SH colours along the viewing directions
+    colors: Tensor  # [N, D] colours (SH along the viewing directions, or the method's RGB)
     opacities: Tensor  # [N] sigmoid(o) * phi(t)
     depths: Tensor  # [N] camera-space z of the centres
     radii: Tensor  # [N, 2] int32 pixel radius per axis, 0 = culled
     temporal: Tensor  # [N] phi(t)
     means: Tensor  # [N, 3] centres at time t (world)
+
+    @property
+    def projected(self) -> Projected:
+        """What the rasterizer takes."""
+        return Projected(self.means2d, self.conics, self.colors, self.opacities, self.depths, self.radii)
 
 
 def camera_row(K: Tensor, width: int, height: int, near_plane: float, eps2d: float) -> np.ndarray:
@@ -71,16 +89,16 @@ def _camera_row(k_bytes: bytes, width: int, height: int, scalar_bytes: bytes) ->
 
 
 class _PrepareCPU(torch.autograd.Function):
-    """``prepare_kernels.prepare_forward`` / ``prepare_backward`` as one autograd node."""
+    """A method's ``FusedKernels`` as one autograd node."""
 
     @staticmethod
-    def forward(ctx, settings, viewmat, centre, cam, *params):
+    def forward(ctx, kernels, settings, no_grad, viewmat, centre, cam, *params):
         arrays = [f32_array(p) for p in params]
         view, ctr = f32_array(viewmat), f32_array(centre)
-        outs = _pk.prepare_forward(settings[0], *arrays, view, ctr, cam, *settings[1:])
+        outs = kernels.forward(*arrays, view, ctr, cam, *settings)
         means2d, conics, colors, opac, depths, radii, phi, means_t = (torch.from_numpy(a) for a in outs)
-        ctx.settings, ctx.view, ctx.centre, ctx.cam = settings, view, ctr, cam
-        ctx.gate_on = settings[3]
+        ctx.kernels, ctx.settings, ctx.no_grad = kernels, settings, no_grad
+        ctx.view, ctx.centre, ctx.cam, ctx.n_dim = view, ctr, cam, colors.shape[1]
         ctx.save_for_backward(*params, radii)
         ctx.mark_non_differentiable(radii)
         ctx.set_materialize_grads(False)
@@ -89,50 +107,31 @@ class _PrepareCPU(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_m2d, g_con, g_col, g_op, g_z, _g_radii, g_phi, g_mt):
         *params, radii = ctx.saved_tensors
-        n, n_dim = params[0].shape[0], params[8].shape[2]
+        n = radii.shape[0]
 
         def cot(g: Tensor | None, shape: tuple[int, ...]) -> np.ndarray:
             return np.zeros(shape, np.float32) if g is None else f32_array(g).reshape(shape)
 
-        grads = _pk.prepare_backward(
-            ctx.settings[0], *[f32_array(p) for p in params], ctx.view, ctx.centre, ctx.cam, *ctx.settings[1:],
-            radii.numpy(), cot(g_m2d, (n, 2)), cot(g_con, (n, 3)), cot(g_col, (n, n_dim)), cot(g_op, (n,)),
-            cot(g_z, (n,)), cot(g_phi, (n,)), cot(g_mt, (n, 3)),
+        grads = ctx.kernels.backward(
+            *[f32_array(p) for p in params], ctx.view, ctx.centre, ctx.cam, *ctx.settings, radii.numpy(),
+            cot(g_m2d, (n, 2)), cot(g_con, (n, 3)), cot(g_col, (n, ctx.n_dim)), cot(g_op, (n,)), cot(g_z, (n,)),
+            cot(g_phi, (n,)), cot(g_mt, (n, 3)),
         )  # fmt: skip
-        out = [torch.from_numpy(g).to(p.dtype) for g, p in zip(grads, params)]
-        if not ctx.gate_on:
-            out[PARAM_NAMES.index("gates")] = None  # as in at_time: the gate is not used at all
-        return (None, None, None, None, *out)
+        out = [None if i in ctx.no_grad else torch.from_numpy(g).to(p.dtype)
+               for i, (g, p) in enumerate(zip(grads, params))]  # fmt: skip
+        return (None, None, None, None, None, None, *out)
 
 
-def prepare(
-    params: Mapping[str, Tensor],  # the model's parameters (PARAM_NAMES), float32 on the CPU
-    t: float,  # seconds
-    viewmat: Tensor,  # [4, 4] world-to-camera
-    K: Tensor,  # [3, 3]
-    centre: Tensor,  # [3] camera centre (world)
-    width: int,
-    height: int,
-    sh_degree: int,
-    max_duration: float | None,  # None: s = exp(d)
-    gate: bool,
-    gate_gamma: float,
+def fused_prepare(
+    kernels: FusedKernels,
+    params: Sequence[Tensor],  # the parameters the kernels read, in their order; float32 on the CPU
+    settings: tuple,  # the kernels' scalar arguments after the camera row (time, SH degree, ...)
+    camera: CameraTensors,
+    no_grad: frozenset[int] = frozenset(),  # indices into ``params`` that get no gradient (None)
     near_plane: float = 0.01,
     eps2d: float = EPS2D,
 ) -> Prepared:
-    """Evaluate, colour and project every Gaussian at time ``t`` (see the module docstring)."""
+    """Run a method's fused kernels as one autograd node (the module docstring)."""
     configure_numba()  # before the first parallel kernel fixes Numba's threading layer
-    n_bases = (sh_degree + 1) ** 2
-    if not 0 <= sh_degree <= 3:
-        raise ValueError(f"SH degree must be in [0, 3], got {sh_degree}")
-    if params["shN"].shape[1] + 1 < n_bases:
-        raise ValueError(f"degree {sh_degree} needs {n_bases} SH coefficients, got {params['shN'].shape[1] + 1}")
-    if max_duration is not None and not max_duration > 0:
-        raise ValueError(f"max_duration must be positive or None, got {max_duration}")
-    settings = (
-        np.float32(t), int(sh_degree), np.float32(0.0 if max_duration is None else max_duration / 6.0),
-        bool(gate), np.float32(gate_gamma),
-    )  # fmt: skip
-    cam = camera_row(K, int(width), int(height), near_plane, eps2d)
-    outs = _PrepareCPU.apply(settings, viewmat, centre, cam, *(params[k] for k in PARAM_NAMES))
-    return Prepared(*outs)
+    cam = camera_row(camera.K, int(camera.width), int(camera.height), near_plane, eps2d)
+    return Prepared(*_PrepareCPU.apply(kernels, settings, no_grad, camera.viewmat, camera.centre, cam, *params))

@@ -1,28 +1,38 @@
-"""Numba kernels of the fused per-Gaussian stage: time evaluation, SH colour, EWA projection.
+"""Numba kernels of the fused per-Gaussian stage, the parts every method shares: SH colour and EWA
+projection, forward and backward, one block of Gaussians at a time.
 
-For every Gaussian, one pass computes what ``FreeTimeGaussians.at_time``, ``sh.eval_sh``
+A method's fused kernel pair (``render.prepare``: ``FusedKernels``) allocates the forward's
+outputs (``forward_outputs``), runs over blocks in parallel (``block_rows``: a block's Gaussians
+and scratch rows), evaluates each block's Gaussians at time t in its own loop, writes each one's
+centre, quaternion and log scales into the block's scratch rows (``gaussian_row``; in the
+forward pass also its opacity, ``opacity_row``), and
+hands the block to ``projection`` (forward) or ``projection_backward`` (backward). A method
+whose colour is SH then hands it to ``sh_colour`` (forward) or ``sh_colour_backward``
+(backward, after the projection's); a method with view-independent RGB copies its colour and
+its cotangent itself. Together they compute what the method's ``at_time``, ``sh.eval_sh``
 (along the normalised direction from the camera centre) and ``project.project`` compute with
-dozens of PyTorch operations, in float32 and in the same order of operations as those
-modules, so that the outputs agree with them to float32 rounding:
+dozens of PyTorch operations, in float32 and in the same order of operations as those modules,
+so that the outputs agree with them to float32 rounding:
 
-    mean(t) = mu + v (t - mu_t),  phi = g + (1 - g) a  or  a,  a = exp(-0.5 ((t - mu_t) / s)^2)
-    opacity = sigmoid(o) phi,      colour = max(sum_k Y_k(dir) sh_k + 0.5, 0)
+    colour = max(sum_k Y_k(dir) sh_k + 0.5, 0)
     means2d, conics, depths, radii  as in ``project.py`` (culled Gaussians: zeros, radii 0;
                                     the opacity-aware radii of ``contract.py``)
 
-``prepare_backward`` recomputes the forward values of each Gaussian and applies the chain
-rule by hand (the derivation is written next to each step). Each Gaussian's gradients are
-computed by one thread with no reduction across Gaussians, so results are bitwise identical
-across runs and thread counts.
+The backward recomputes the forward values of each Gaussian and applies the chain rule by hand
+(the derivation is written next to each step), leaving the cotangent of each centre at time t
+(the projection's and the SH colour's) in the rows ``ROW_GMX`` .. ``ROW_GMZ``, and that of its
+quaternion at time t in ``gr_quats``, for the method's own chain rule through time. Each
+Gaussian's gradients are computed by one thread with no reduction across Gaussians, so results
+are bitwise identical across runs and thread counts.
 
-Each block of 256 Gaussians goes through three loops: the library calls (exp, log) one
-Gaussian at a time, writing one 1D array per quantity into the block's own scratch rows; the
-projection (``_project_block``, and its chain rule in two loops), arithmetic only, which LLVM
-vectorises across Gaussians; the SH colour. Lanes never reorder the arithmetic (no fast-math),
-so every non-NaN result has the bits a scalar loop gives it, on every target. A NaN result is
-NaN in the same places, but its payload and sign bits depend on the instructions LLVM chose
-(vector lanes or the scalar remainder, a fresh compile or a cached one), as they already did
-between targets: the guarantee leaves them out.
+Each block of ``BLOCK`` Gaussians goes through three loops: the library calls (exp, log) one
+Gaussian at a time (the method's loop), writing one 1D array per quantity into the block's own
+scratch rows; the projection (``_project_block``, and its chain rule in two loops), arithmetic
+only, which LLVM vectorises across Gaussians; the SH colour, if any. Lanes never reorder the
+arithmetic (no fast-math), so every non-NaN result has the bits a scalar loop gives it, on
+every target. A NaN result is NaN in the same places, but its payload and sign bits depend on
+the instructions LLVM chose (vector lanes or the scalar remainder, a fresh compile or a cached
+one), as they already did between targets: the guarantee leaves them out.
 
 Float literals are ``np.float32`` constants: a Python float would promote the maths to float64.
 """
@@ -32,7 +42,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ftgspp.render.contract import ALPHA_MIN, FAR_PLANE, PIXEL_OFFSET, RADIUS_EXTEND
 from ftgspp.render.sh import C0, C1, C2, C3
@@ -65,29 +75,19 @@ N_CAM = 12
 
 BLOCK = 256  # Gaussians per parallel work item
 
+# The rows of a block's scratch array (float32 [rows, m]: one row per quantity, one column per
+# Gaussian of the block). A method's kernel fills the first ten in both passes (``gaussian_row``)
+# and, in the forward pass, the eleventh (``opacity_row``); the rest are the block functions' own.
+ROW_LOG_RATIO = 10  # forward: log(opacity / ALPHA_MIN), the opacity-aware radius
+FORWARD_ROWS = 16  # + means2d (2) and conics (3)
+ROW_GMX, ROW_GMY, ROW_GMZ = 25, 26, 27  # backward: the cotangent of the centre at time t
+BACKWARD_ROWS = 28
+
 
 @njit(**JIT)
-def _sigmoid(x):
+def sigmoid(x):
+    """1 / (1 + exp(-x)) of a float32 scalar, in float32."""
     return F1 / (F1 + math.exp(-x))
-
-
-@njit(**JIT)
-def _temporal(t, mu_t, d, gate_logit, max_duration, gate_on, gate_gamma):
-    """(dt, s, a, gate value, phi) at time t of a Gaussian with centre mu_t, duration
-    parameter d and gate logit (float32 scalars, so that calls carry no arrays)."""
-    if max_duration > F0:
-        s = max_duration * _sigmoid(d)  # max_duration holds max_duration / 6
-    else:
-        s = np.float32(math.exp(d))
-    dt = t - mu_t
-    r = dt / s
-    a = np.float32(math.exp(np.float32(-F_HALF) * (r * r)))
-    gv = F0
-    phi = a
-    if gate_on:
-        gv = _sigmoid(gate_gamma * gate_logit)
-        phi = gv + (F1 - gv) * a
-    return dt, s, a, gv, phi
 
 
 @njit(**JIT)
@@ -278,16 +278,39 @@ def _geometry(mean_x, mean_y, mean_z, scale, q, V, W, fx, fy, near, lims, eps):
 
 
 @njit(inline="always", **JIT)
-def _gaussian_rows(i, b, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2):
-    """Gaussian i's centre at time t (its offset ``dt`` = t - mu_t), quaternion and scales
-    (exp(log scales)) into entry b of the block's 1D rows that the projection loops read."""
-    mx[b] = means[i, 0] + velocities[i, 0] * dt
-    my[b] = means[i, 1] + velocities[i, 1] * dt
-    mz[b] = means[i, 2] + velocities[i, 2] * dt
-    qw[b], qx[b], qy[b], qz[b] = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-    s0[b] = np.float32(math.exp(log_scales[i, 0]))
-    s1[b] = np.float32(math.exp(log_scales[i, 1]))
-    s2[b] = np.float32(math.exp(log_scales[i, 2]))
+def gaussian_row(f, b, x, y, z, qw, qx, qy, qz, ls0, ls1, ls2):
+    """Entry b of a block's first ten rows (``f``): the Gaussian's centre at time t (x, y, z), its
+    quaternion and its scales (exp of the log scales ls0..ls2), float32 scalars."""
+    f[0, b], f[1, b], f[2, b] = x, y, z
+    f[3, b], f[4, b], f[5, b], f[6, b] = qw, qx, qy, qz
+    f[7, b] = np.float32(math.exp(ls0))
+    f[8, b] = np.float32(math.exp(ls1))
+    f[9, b] = np.float32(math.exp(ls2))
+
+
+@njit(inline="always", **JIT)
+def opacity_row(f, b, o):
+    """Entry b of a forward block's ``ROW_LOG_RATIO`` from the Gaussian's opacity o at time t."""
+    f[ROW_LOG_RATIO, b] = np.float32(math.log(o / F_ALPHA_MIN))
+
+
+@njit(inline="always", **JIT)
+def block_rows(blk, n, rows):
+    """(lo, hi, f): the Gaussians lo..hi-1 of parallel work item ``blk`` of n, and their scratch rows
+    ``f`` (float32 [rows, hi - lo], uninitialised: ``FORWARD_ROWS`` or ``BACKWARD_ROWS``)."""
+    lo = blk * BLOCK
+    hi = min(n, lo + BLOCK)
+    return lo, hi, np.empty((rows, hi - lo), np.float32)
+
+
+@njit(**JIT)
+def forward_outputs(n, n_dim):
+    """A forward kernel's outputs for n Gaussians with n_dim colour channels, uninitialised (each
+    block writes its rows): means2d [n, 2], conics [n, 3], colors [n, n_dim], opacities [n],
+    depths [n], radii [n, 2] int32, phi [n], means_t [n, 3]."""
+    return (np.empty((n, 2), np.float32), np.empty((n, 3), np.float32), np.empty((n, n_dim), np.float32),
+            np.empty(n, np.float32), np.empty(n, np.float32), np.empty((n, 2), np.int32), np.empty(n, np.float32),
+            np.empty((n, 3), np.float32))  # fmt: skip
 
 
 @njit(inline="always", **JIT)
@@ -339,75 +362,45 @@ def _project_block(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_rat
         con2[i] = ca / det if ok else F0
 
 
-@njit(parallel=True, **JIT)
-def prepare_forward(
-    t: np.float32,
-    means: np.ndarray,  # [N, 3] float32
-    velocities: np.ndarray,  # [N, 3]
-    times: np.ndarray,  # [N]
-    durations: np.ndarray,  # [N]
-    log_scales: np.ndarray,  # [N, 3]
-    quats: np.ndarray,  # [N, 4]
-    opacity_logits: np.ndarray,  # [N]
-    gate_logits: np.ndarray,  # [N]
-    sh0: np.ndarray,  # [N, 1, D]
-    shN: np.ndarray,  # [N, K - 1, D]
-    view: np.ndarray,  # [4, 4] world-to-camera
-    centre: np.ndarray,  # [3] camera centre (world)
-    cam: np.ndarray,  # [N_CAM] camera row (CAM_*)
-    sh_degree: int,
-    max_duration: np.float32,  # max_duration / 6, or <= 0 for s = exp(d)
-    gate_on: bool,
-    gate_gamma: np.float32,
-):
-    """Forward pass: (means2d [N, 2], conics [N, 3], colors [N, D], opacities [N], depths [N],
-    radii [N, 2] int32, phi [N], means_t [N, 3]), all float32 but radii."""
-    n = means.shape[0]
+@njit(**JIT)
+def projection(lo, hi, f, view, cam, opac, depths, means_t, means2d, conics, radii):
+    """The forward projection of the block of Gaussians lo..hi-1, whose rows 0..10 of ``f``
+    (``FORWARD_ROWS`` x (hi - lo)) and opacities ``opac[lo:hi]`` the method has written: their
+    depths, means2d, conics and radii (``_project_block``) and their centres at time t
+    (``means_t``), into rows lo..hi-1 of those outputs."""
+    mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, m2x, m2y, con0, con1, con2 = (
+        f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15]
+    )
+    rad = np.empty((2, hi - lo), np.int32)
+    _project_block(hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac[lo:hi],
+                   depths[lo:hi], m2x, m2y, con0, con1, con2, rad[0], rad[1])  # fmt: skip
+    for i in range(lo, hi):
+        b = i - lo
+        means_t[i, 0], means_t[i, 1], means_t[i, 2] = mx[b], my[b], mz[b]
+        means2d[i, 0], means2d[i, 1] = m2x[b], m2y[b]
+        conics[i, 0], conics[i, 1], conics[i, 2] = con0[b], con1[b], con2[b]
+        radii[i, 0], radii[i, 1] = rad[0, b], rad[1, b]
+
+
+@njit(**JIT)
+def sh_colour(lo, hi, f, centre, sh_degree, sh0, shN, colors):
+    """The SH colours of degree ``sh_degree`` of the block of Gaussians lo..hi-1 (rows 0..2 of
+    ``f``: their centres at time t) along the viewing direction from ``centre``, into rows
+    lo..hi-1 of ``colors``. For a method whose colour is SH; one with RGB writes its own."""
+    mx, my, mz = f[0], f[1], f[2]
     n_dim = sh0.shape[2]
-    means2d = np.empty((n, 2), np.float32)
-    conics = np.empty((n, 3), np.float32)
-    colors = np.empty((n, n_dim), np.float32)
-    opac = np.empty(n, np.float32)
-    depths = np.empty(n, np.float32)
-    radii = np.empty((n, 2), np.int32)
-    phis = np.empty(n, np.float32)
-    means_t = np.empty((n, 3), np.float32)
-    for blk in prange((n + BLOCK - 1) // BLOCK):
-        lo = blk * BLOCK
-        hi = min(n, lo + BLOCK)
-        f = np.empty((16, hi - lo), np.float32)  # the block's rows, one per quantity of _project_block
-        mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, m2x, m2y, con0, con1, con2 = (
-            f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15]
-        )
-        rad = np.empty((2, hi - lo), np.int32)
-        for i in range(lo, hi):  # the library calls (exp, log), one Gaussian at a time
-            dt, s, a, gv, phi = _temporal(
-                t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
-            )
-            phis[i] = phi
-            o = _sigmoid(opacity_logits[i]) * phi
-            opac[i] = o
-            log_ratio[i - lo] = np.float32(math.log(o / F_ALPHA_MIN))
-            _gaussian_rows(i, i - lo, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
-        _project_block(hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, log_ratio, opac[lo:hi],
-                       depths[lo:hi], m2x, m2y, con0, con1, con2, rad[0], rad[1])  # fmt: skip
-        basis = np.empty(16, np.float32)
-        for i in range(lo, hi):
-            b = i - lo
-            means_t[i, 0], means_t[i, 1], means_t[i, 2] = mx[b], my[b], mz[b]
-            means2d[i, 0], means2d[i, 1] = m2x[b], m2y[b]
-            conics[i, 0], conics[i, 1], conics[i, 2] = con0[b], con1[b], con2[b]
-            radii[i, 0], radii[i, 1] = rad[0, b], rad[1, b]
-            # colour along the (twice normalised, as view.py then sh.py do) viewing direction
-            d1x, d1y, d1z, _ = _normalise(mx[b] - centre[0], my[b] - centre[1], mz[b] - centre[2], F_EPS_DIR)
-            dx, dy, dz, _ = _normalise(d1x, d1y, d1z, F_EPS_SH)
-            _basis(sh_degree, dx, dy, dz, basis)
-            for ch in range(n_dim):
-                rgb = basis[0] * sh0[i, 0, ch]
-                for k in range(1, (sh_degree + 1) * (sh_degree + 1)):
-                    rgb += basis[k] * shN[i, k - 1, ch]
-                colors[i, ch] = max(rgb + F_HALF, F0)
-    return means2d, conics, colors, opac, depths, radii, phis, means_t
+    basis = np.empty(16, np.float32)
+    for i in range(lo, hi):
+        b = i - lo
+        # colour along the (twice normalised, as view.py then sh.py do) viewing direction
+        d1x, d1y, d1z, _ = _normalise(mx[b] - centre[0], my[b] - centre[1], mz[b] - centre[2], F_EPS_DIR)
+        dx, dy, dz, _ = _normalise(d1x, d1y, d1z, F_EPS_SH)
+        _basis(sh_degree, dx, dy, dz, basis)
+        for ch in range(n_dim):
+            rgb = basis[0] * sh0[i, 0, ch]
+            for k in range(1, (sh_degree + 1) * (sh_degree + 1)):
+                rgb += basis[k] * shN[i, k - 1, ch]
+            colors[i, ch] = max(rgb + F_HALF, F0)
 
 
 @njit(inline="always", **JIT)
@@ -530,140 +523,74 @@ def _shape_block_backward(m, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, 
         )
 
 
-@njit(parallel=True, **JIT)
-def prepare_backward(
-    t: np.float32,
-    means: np.ndarray,
-    velocities: np.ndarray,
-    times: np.ndarray,
-    durations: np.ndarray,
-    log_scales: np.ndarray,
-    quats: np.ndarray,
-    opacity_logits: np.ndarray,
-    gate_logits: np.ndarray,
-    sh0: np.ndarray,
-    shN: np.ndarray,
-    view: np.ndarray,
-    centre: np.ndarray,
-    cam: np.ndarray,
-    sh_degree: int,
-    max_duration: np.float32,
-    gate_on: bool,
-    gate_gamma: np.float32,
-    radii: np.ndarray,  # [N, 2] int32 from the forward pass
-    g_means2d: np.ndarray,  # [N, 2] cotangents of the forward outputs
-    g_conics: np.ndarray,  # [N, 3]
-    g_colors: np.ndarray,  # [N, D]
-    g_opac: np.ndarray,  # [N]
-    g_depths: np.ndarray,  # [N]
-    g_phi: np.ndarray,  # [N]
-    g_means_t: np.ndarray,  # [N, 3]
-):
-    """Gradients of the inputs (same order as ``prepare_forward``'s array arguments, float32):
-    means, velocities, times, durations, log_scales, quats, opacity_logits, gate_logits, sh0, shN."""
-    n = means.shape[0]
+@njit(**JIT)
+def projection_backward(lo, hi, f, view, cam, radii, g_means2d, g_conics, g_depths, g_means_t, gr_ls, gr_quats):
+    """The backward projection of the block of Gaussians lo..hi-1, whose rows 0..9 of ``f``
+    (``BACKWARD_ROWS`` x (hi - lo)) the method has written as in the forward pass: the gradients
+    of their log scales and quaternions (rows lo..hi-1 of ``gr_ls``, ``gr_quats``), and in rows
+    ``ROW_GMX`` .. ``ROW_GMZ`` the cotangent of each centre at time t: the ``means_t`` output's
+    (``g_means_t``) and the projection's (``sh_colour_backward`` adds the colour's). ``radii``
+    and the cotangents are the whole forward outputs' arrays."""
+    mx, my, mz, qw, qx, qy, qz, s0, s1, s2, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_mtx, g_mty, g_mtz = (
+        f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15],
+        f[16], f[17],
+    )  # fmt: skip
+    gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz, g_mx, g_my, g_mz = (
+        f[18], f[19], f[20], f[21], f[22], f[23], f[24], f[25], f[26], f[27]
+    )
+    radii_x = np.empty(hi - lo, np.int32)
+    for i in range(lo, hi):  # the cotangents' rows
+        b = i - lo
+        radii_x[b] = radii[i, 0]
+        g_m2x[b], g_m2y[b] = g_means2d[i, 0], g_means2d[i, 1]
+        g_con0[b], g_con1[b], g_con2[b] = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
+        g_mtx[b], g_mty[b], g_mtz[b] = g_means_t[i, 0], g_means_t[i, 1], g_means_t[i, 2]
+    g_dep = g_depths[lo:hi]
+    _position_block_backward(
+        hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
+        g_dep, g_mtx, g_mty, g_mtz, g_mx, g_my, g_mz,
+    )  # fmt: skip
+    _shape_block_backward(
+        hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
+        g_dep, gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz,
+    )  # fmt: skip
+    for i in range(lo, hi):
+        b = i - lo
+        gr_ls[i, 0], gr_ls[i, 1], gr_ls[i, 2] = gr_ls0[b], gr_ls1[b], gr_ls2[b]
+        gr_quats[i, 0], gr_quats[i, 1], gr_quats[i, 2], gr_quats[i, 3] = gr_qw[b], gr_qx[b], gr_qy[b], gr_qz[b]
+
+
+@njit(**JIT)
+def sh_colour_backward(lo, hi, f, centre, sh_degree, sh0, shN, g_colors, gr_sh0, gr_shN):
+    """The backward of ``sh_colour`` for the block of Gaussians lo..hi-1 (after
+    ``projection_backward``): the gradients of their SH coefficients (rows lo..hi-1 of
+    ``gr_sh0``, ``gr_shN``), and the colour's share of the cotangent of each centre at time t
+    added to rows ``ROW_GMX`` .. ``ROW_GMZ`` of ``f``."""
+    mx, my, mz, g_mx, g_my, g_mz = f[0], f[1], f[2], f[ROW_GMX], f[ROW_GMY], f[ROW_GMZ]
     n_dim = sh0.shape[2]
     n_bases = (sh_degree + 1) * (sh_degree + 1)
-    gr_means = np.empty((n, 3), np.float32)
-    gr_vel = np.empty((n, 3), np.float32)
-    gr_times = np.empty(n, np.float32)
-    gr_dur = np.empty(n, np.float32)
-    gr_ls = np.empty((n, 3), np.float32)
-    gr_quats = np.empty((n, 4), np.float32)
-    gr_o = np.empty(n, np.float32)
-    gr_gate = np.zeros(n, np.float32)
-    gr_sh0 = np.empty(sh0.shape, np.float32)
-    gr_shN = np.zeros(shN.shape, np.float32)
-    for blk in prange((n + BLOCK - 1) // BLOCK):
-        lo = blk * BLOCK
-        hi = min(n, lo + BLOCK)
-        temporal = np.empty((5, hi - lo), np.float32)  # the forward's (dt, s, a, gate value, phi)
-        f = np.empty((28, hi - lo), np.float32)  # the block's rows, one per quantity of the projection loops
-        mx, my, mz, qw, qx, qy, qz, s0, s1, s2, g_m2x, g_m2y, g_con0, g_con1, g_con2, g_mtx, g_mty, g_mtz = (
-            f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9], f[10], f[11], f[12], f[13], f[14], f[15],
-            f[16], f[17],
-        )  # fmt: skip
-        gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz, g_mx, g_my, g_mz = (
-            f[18], f[19], f[20], f[21], f[22], f[23], f[24], f[25], f[26], f[27]
-        )
-        radii_x = np.empty(hi - lo, np.int32)
-        for i in range(lo, hi):  # the library calls (exp), one Gaussian at a time, and the inputs' rows
-            b = i - lo
-            dt, s, a, gv, phi = _temporal(
-                t, times[i], durations[i], gate_logits[i], max_duration, gate_on, gate_gamma
-            )
-            temporal[0, b], temporal[1, b], temporal[2, b], temporal[3, b], temporal[4, b] = dt, s, a, gv, phi
-            _gaussian_rows(i, b, dt, means, velocities, quats, log_scales, mx, my, mz, qw, qx, qy, qz, s0, s1, s2)
-            radii_x[b] = radii[i, 0]
-            g_m2x[b], g_m2y[b] = g_means2d[i, 0], g_means2d[i, 1]
-            g_con0[b], g_con1[b], g_con2[b] = g_conics[i, 0], g_conics[i, 1], g_conics[i, 2]
-            g_mtx[b], g_mty[b], g_mtz[b] = g_means_t[i, 0], g_means_t[i, 1], g_means_t[i, 2]
-        g_dep = g_depths[lo:hi]
-        _position_block_backward(
-            hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
-            g_dep, g_mtx, g_mty, g_mtz, g_mx, g_my, g_mz,
-        )  # fmt: skip
-        _shape_block_backward(
-            hi - lo, view, cam, mx, my, mz, qw, qx, qy, qz, s0, s1, s2, radii_x, g_m2x, g_m2y, g_con0, g_con1, g_con2,
-            g_dep, gr_ls0, gr_ls1, gr_ls2, gr_qw, gr_qx, gr_qy, gr_qz,
-        )  # fmt: skip
-        basis = np.empty(16, np.float32)
-        g_basis = np.empty(16, np.float32)
-        for i in range(lo, hi):
-            b = i - lo
-            dt, s, a, gv, phi = temporal[0, b], temporal[1, b], temporal[2, b], temporal[3, b], temporal[4, b]
-            gr_ls[i, 0], gr_ls[i, 1], gr_ls[i, 2] = gr_ls0[b], gr_ls1[b], gr_ls2[b]
-            gr_quats[i, 0], gr_quats[i, 1], gr_quats[i, 2], gr_quats[i, 3] = gr_qw[b], gr_qx[b], gr_qy[b], gr_qz[b]
-            gmx = g_mx[b]
-            gmy = g_my[b]
-            gmz = g_mz[b]
-            for k in range(16):
-                g_basis[k] = F0
-
-            # --- SH colour
-            d1x, d1y, d1z, n1 = _normalise(mx[b] - centre[0], my[b] - centre[1], mz[b] - centre[2], F_EPS_DIR)
-            dx, dy, dz, n2 = _normalise(d1x, d1y, d1z, F_EPS_SH)
-            _basis(sh_degree, dx, dy, dz, basis)
-            for ch in range(n_dim):
-                rgb = basis[0] * sh0[i, 0, ch]
-                for k in range(1, n_bases):
-                    rgb += basis[k] * shN[i, k - 1, ch]
-                g_rgb = g_colors[i, ch] if rgb + F_HALF >= F0 else F0  # clamp_min passes at >= 0
-                gr_sh0[i, 0, ch] = basis[0] * g_rgb
-                for k in range(1, n_bases):
-                    gr_shN[i, k - 1, ch] = basis[k] * g_rgb
-                    g_basis[k] += shN[i, k - 1, ch] * g_rgb
-            if sh_degree >= 1:
-                gdx, gdy, gdz = _basis_grad(sh_degree, dx, dy, dz, g_basis)
-                gdx, gdy, gdz = _normalise_grad(dx, dy, dz, n2, F_EPS_SH, gdx, gdy, gdz)
-                gdx, gdy, gdz = _normalise_grad(d1x, d1y, d1z, n1, F_EPS_DIR, gdx, gdy, gdz)
-                gmx += gdx
-                gmy += gdy
-                gmz += gdz
-
-            # --- time: mean_t = mu + v dt, dt = t - mu_t; opacity = sigmoid(o) phi
-            gr_means[i, 0] = gmx
-            gr_means[i, 1] = gmy
-            gr_means[i, 2] = gmz
-            gr_vel[i, 0] = gmx * dt
-            gr_vel[i, 1] = gmy * dt
-            gr_vel[i, 2] = gmz * dt
-            g_dt = gmx * velocities[i, 0] + gmy * velocities[i, 1] + gmz * velocities[i, 2]
-            sig_o = _sigmoid(opacity_logits[i])
-            g_phi_total = g_phi[i] + g_opac[i] * sig_o
-            gr_o[i] = g_opac[i] * phi * sig_o * (F1 - sig_o)
-            g_a = g_phi_total
-            if gate_on:  # phi = g + (1 - g) a, g = sigmoid(gamma logit)
-                g_a = g_phi_total * (F1 - gv)
-                gr_gate[i] = g_phi_total * (F1 - a) * gate_gamma * gv * (F1 - gv)
-            # a = exp(-r^2 / 2), r = dt / s
-            r = dt / s
-            g_r = -g_a * a * r
-            g_dt += g_r / s
-            g_s = -g_r * r / s
-            gr_times[i] = -g_dt
-            if max_duration > F0:  # s = (max/6) sigmoid(d): ds/dd = s (1 - sigmoid(d))
-                gr_dur[i] = g_s * s * (F1 - _sigmoid(durations[i]))
-            else:  # s = exp(d)
-                gr_dur[i] = g_s * s
-    return gr_means, gr_vel, gr_times, gr_dur, gr_ls, gr_quats, gr_o, gr_gate, gr_sh0, gr_shN
+    basis = np.empty(16, np.float32)
+    g_basis = np.empty(16, np.float32)
+    for i in range(lo, hi):
+        b = i - lo
+        for k in range(16):
+            g_basis[k] = F0
+        d1x, d1y, d1z, n1 = _normalise(mx[b] - centre[0], my[b] - centre[1], mz[b] - centre[2], F_EPS_DIR)
+        dx, dy, dz, n2 = _normalise(d1x, d1y, d1z, F_EPS_SH)
+        _basis(sh_degree, dx, dy, dz, basis)
+        for ch in range(n_dim):
+            rgb = basis[0] * sh0[i, 0, ch]
+            for k in range(1, n_bases):
+                rgb += basis[k] * shN[i, k - 1, ch]
+            g_rgb = g_colors[i, ch] if rgb + F_HALF >= F0 else F0  # clamp_min passes at >= 0
+            gr_sh0[i, 0, ch] = basis[0] * g_rgb
+            for k in range(1, n_bases):
+                gr_shN[i, k - 1, ch] = basis[k] * g_rgb
+                g_basis[k] += shN[i, k - 1, ch] * g_rgb
+        if sh_degree >= 1:
+            gdx, gdy, gdz = _basis_grad(sh_degree, dx, dy, dz, g_basis)
+            gdx, gdy, gdz = _normalise_grad(dx, dy, dz, n2, F_EPS_SH, gdx, gdy, gdz)
+            gdx, gdy, gdz = _normalise_grad(d1x, d1y, d1z, n1, F_EPS_DIR, gdx, gdy, gdz)
+            g_mx[b] += gdx
+            g_my[b] += gdy
+            g_mz[b] += gdz

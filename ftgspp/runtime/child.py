@@ -2,7 +2,7 @@
 
 Kernel dispatch is fixed when the libraries load, so a run whose determinism settings
 differ from this process's trains in a child process started with the right environment,
-and the parent collects its metrics, loss curve, artifacts and determinism domain:
+and the parent collects its metrics, params, loss curve, artifacts and determinism domain:
 
 - ``determinism=portable`` from a process without the portable environment (``ftgspp train
   determinism=portable``, a ``study run`` mixing modes, or ``train()`` called from Python);
@@ -117,6 +117,7 @@ def train_in_child(cfg: TrainConfig, tracker: Tracker) -> RunResult:
                            f"child process: {last}")
     _log_curve(blob, tracker)
     tracker.set_tags({f"determinism.{k}": v for k, v in blob["domain"].items()})
+    tracker.log_params(blob.get("params", {}))
     tracker.log_metrics({k: v for k, v in blob["metrics"].items() if v is not None})
     for path, artifact_path in blob["artifacts"]:
         tracker.log_artifact(Path(path), artifact_path)
@@ -181,14 +182,16 @@ def _stop_child(proc: subprocess.Popen, log: object) -> None:
 
 
 class _Recorder:
-    """The child's tracker: keeps the per-step curve and the artifacts for the parent."""
+    """The child's tracker: keeps the per-step curve, the params the trainer logs (the initial
+    count, which render stage ran, ...) and the artifacts for the parent."""
 
     def __init__(self) -> None:
         self.curve: list[tuple[int | None, dict]] = []
+        self.params: dict[str, str] = {}
         self.artifacts: list[tuple[str, str | None]] = []
 
     def log_params(self, params):
-        pass
+        self.params.update({k: str(v) for k, v in params.items()})
 
     def log_metrics(self, metrics, step=None):
         if step is not None:
@@ -244,6 +247,6 @@ def child_main(config_file: Path, train: Callable[..., RunResult]) -> int:
     domain = json.loads((Path(cfg.out_dir) / "determinism.json").read_text())
     result_file.write_text(json.dumps({
         "status": result.status, "failure": result.failure, "metrics": result.metrics, "curve": recorder.curve,
-        "domain": domain, "artifacts": recorder.artifacts}))
+        "domain": domain, "params": recorder.params, "artifacts": recorder.artifacts}))
     return 0
 

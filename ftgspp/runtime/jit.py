@@ -10,12 +10,16 @@ code cached on disk (``NUMBA_CACHE_DIR``, else ``__pycache__`` next to the modul
 chose one (it starts a parallel region in a few microseconds; ``workqueue`` takes tens to
 hundreds); ``NUMBA_THREADING_LAYER`` overrides the choice. Numba fixes the layer when the
 first parallel kernel runs, so ``ftgspp.runtime.enter`` and the entry points of the ``cpu``
-backend (``render.cpu.rasterize``, ``render.prepare.prepare``, ``ssim_cpu.ssim_same_cpu``)
+backend (``render.cpu.rasterize``, ``render.prepare.fused_prepare``, ``ssim_cpu.ssim_same_cpu``)
 call it first; importing a module never does. It is idempotent and cheap after the first call.
 
-``widen_vectors()`` is the one thing importing this module does: on an AVX-512 target it lifts
-LLVM's preference for 256-bit vectors (Intel's tuning), which must happen before the first
-kernel is defined; the kernels' rows are sized by ``vector_lanes()``.
+Importing this module does two things, both before the first kernel is defined:
+``widen_vectors()`` (on an AVX-512 target it lifts LLVM's preference for 256-bit vectors, Intel's
+tuning; the kernels' rows are sized by ``vector_lanes()``), and ``stamp_called_files()``: Numba
+decides whether a kernel's cached machine code is current from the kernel's own source file
+only, so a kernel that calls a Numba function of another file (a method's fused kernel calls
+the shared block functions of ``render/prepare_kernels.py``) would keep running the old code of
+that function after it changed; its cache stamp covers those files too.
 
     from ftgspp.runtime.jit import JIT, configure_numba
     @njit(parallel=True, **JIT)
@@ -24,7 +28,10 @@ kernel is defined; the kernels' rows are sized by ``vector_lanes()``.
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import importlib
+import inspect
 import os
 from collections.abc import Mapping
 
@@ -143,4 +150,63 @@ def allow_short_vector_loops() -> None:
         _short_loops = True
 
 
+def called_files(py_func) -> tuple[str, ...]:
+    """The source files, other than its own, of the Numba functions a kernel's module has in its
+    globals (the functions it may call), and of theirs in turn; sorted."""
+    from numba.core.dispatcher import Dispatcher
+
+    own = inspect.getfile(py_func)
+    seen: set[str] = set()
+    todo = [py_func.__globals__]
+    while todo:
+        for value in todo.pop().values():
+            if isinstance(value, Dispatcher) and (path := inspect.getfile(value.py_func)) not in seen | {own}:
+                seen.add(path)
+                todo.append(value.py_func.__globals__)
+    return tuple(sorted(seen))
+
+
+@functools.lru_cache(maxsize=None)
+def _file_digest(path: str, mtime: float, size: int) -> str:
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+class _CalledFilesStamp:
+    """A Numba cache locator's stamp that covers the files of the functions a kernel calls from other
+    files as well as its own (mixed into Numba's locators by ``stamp_called_files``)."""
+
+    _called: tuple[str, ...] = ()
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        called = called_files(py_func)
+        if not called:  # Numba's own locator then, with its own stamp
+            return None
+        locator = super().from_function(py_func, py_file)
+        if locator is not None:
+            locator._called = called
+        return locator
+
+    def get_source_stamp(self):
+        digests = tuple(_file_digest(f, os.stat(f).st_mtime, os.stat(f).st_size) for f in self._called)
+        return super().get_source_stamp(), digests
+
+
+def stamp_called_files() -> None:
+    """Put ``_CalledFilesStamp`` locators first in Numba's list (where ``NUMBA_CACHE_DIR`` or the
+    module's ``__pycache__`` holds the cache, as Numba's first two); once per process. Kernels that
+    call no other file's Numba function keep Numba's own locators and stamps."""
+    from numba.core import caching
+
+    impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl  # _CacheImpl in older Numba
+    classes = impl._locator_classes
+    if any(issubclass(c, _CalledFilesStamp) for c in classes):
+        return
+    ours = [type(f"CalledFiles{c.__name__}", (_CalledFilesStamp, c), {})
+            for c in (caching.UserProvidedCacheLocator, caching.InTreeCacheLocator)]  # fmt: skip
+    classes[:0] = ours
+
+
 widen_vectors()  # before any kernel module defines its first kernel (see the docstring)
+stamp_called_files()

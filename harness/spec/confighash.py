@@ -48,6 +48,7 @@ HASH_NEUTRAL = {
     "lr.trbf_scale": "0.03",
     "lr.motion": "0.00028",
     "lr.omega": "0.0001",
+    "model.fused_stage": "null",
 }
 
 

@@ -10,7 +10,7 @@ import torch
 from ftgspp.bench.model_fps import MODEL_FILES, measure, model_bytes, threads
 from ftgspp.checkpoint import save_config, save_model
 from ftgspp.config import DataConfig, ModelConfig, TrainConfig
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods.freetime import FreeTimeGaussians
 from harness.run.known_size import generate
 
 

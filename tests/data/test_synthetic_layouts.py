@@ -23,7 +23,7 @@ from ftgspp.data.synthetic.layouts import ENERF_OUTDOOR_D, LENS_LAYOUTS, make_le
 from ftgspp.data.synthetic.rig import make_rig
 from ftgspp.errors import InputError
 from ftgspp.evaluate import evaluate
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods.freetime import FreeTimeGaussians
 from ftgspp.trainer import train
 
 SMALL = dict(width=64, height=48, n_frames=6, n_cameras=6)

@@ -12,7 +12,7 @@ import torch
 from ftgspp.config import DataConfig, ModelConfig
 from ftgspp.data.load import load_scene
 from ftgspp.errors import InputError
-from ftgspp.model import SH_C0, FreeTimeGaussians
+from ftgspp.methods.freetime import SH_C0, FreeTimeGaussians
 from ftgspp.view import render_view
 from harness.run import known_size
 from harness.run.scenes import ensure_scene

@@ -18,7 +18,7 @@ from ftgspp.diagnostics.diagnose import ground_truth_scores
 from ftgspp.diagnostics.lifetimes import lifetime_fractions
 from ftgspp.diagnostics.motion import load_clean_frames, load_ground_truth
 from ftgspp.diagnostics.truth import load_true_model, true_model
-from ftgspp.model import FreeTimeGaussians
+from ftgspp.methods.freetime import FreeTimeGaussians
 from harness.run import known_size
 
 TINY = dict(k=40, moving_share=0.5, n_cameras=4, n_frames=6, width=64, height=48, sigma_px=2.0, ground_truth=True)

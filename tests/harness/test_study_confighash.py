@@ -74,3 +74,18 @@ def test_an_option_added_later_hashes_like_before_at_its_old_behaviour_and_count
     for change in (dict(matcher="dense"), dict(candidates_per_frame=1000), dict(flow_combine="rays")):
         other = dataclasses.replace(base, init=dataclasses.replace(base.init, **change))
         assert _hash(other) != _hash(base), change
+
+
+def test_a_methods_own_rate_adds_nothing_to_the_params_until_set() -> None:
+    """``lr.method`` (a method's own rates, ``DynamicGaussians.LEARNING_RATES``) is empty by default
+    and then absent from the flattened config, so a method that brings rates of its own leaves
+    every other run's params and hash as they were; ``+lr.method.<key>=`` is a hashed option."""
+    from harness.spec.schema import compose, to_train_config
+
+    base = to_train_config(compose([]))
+    own = to_train_config(compose(["+lr.method.rgb=0.001"]))
+    assert base.lr.method == {} and own.lr.method == {"rgb": 0.001}
+    assert not any(k.startswith("lr.method") for k in flatten_config(base))
+    flat = flatten_config(own)
+    assert flat["lr.method.rgb"] == "0.001"
+    assert config_hash(flat) != config_hash(flatten_config(base))

@@ -229,7 +229,7 @@ def test_a_gaussian_drawn_nowhere_in_the_clip_is_dead_only_under_the_clip_rule()
 
 def test_peak_opacity_in_a_window_is_at_the_gaussians_own_time_clipped_to_it():
     from ftgspp.config import InitConfig, ModelConfig
-    from ftgspp.model import FreeTimeGaussians
+    from ftgspp.methods.freetime import FreeTimeGaussians
 
     n = 3
     times = np.array([0.5, -2.0, 3.0], np.float32)  # inside, before and after the window [0, 1]

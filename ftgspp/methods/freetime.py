@@ -11,6 +11,8 @@ a gate logit g̃ (docs/design.md §4). At time t it is an ordinary 3D Gaussian w
 
 Every per-Gaussian tensor has leading dimension N and lives in ``params``. The class is the
 first implementation of the method interface (``ftgspp/methods/base.py``); ``model.method=freetime``.
+On the ``cpu`` backend it renders through a fused stage of its own (``prepare_cpu``:
+``freetime_fused.py``, its time evaluation in Numba before the shared colour and projection).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import torch
 from ftgspp.config import InitConfig, LossConfig, ModelConfig
 from ftgspp.losses import gate_penalty, opacity_4d, scale_penalty
 from ftgspp.methods.base import DynamicGaussians, GaussiansAt
+from ftgspp.render.contract import CameraTensors, Projected
 
 __all__ = ["FreeTimeGaussians", "GaussiansAt", "SH_C0", "duration_to_param"]
 
@@ -34,9 +37,11 @@ class FreeTimeGaussians(DynamicGaussians):
     """Per-Gaussian parameters and their activations: FreeTimeGS, and FreeTimeGS++ with the
     bounded temporal scale and the gate (``ModelConfig``); the first ``DynamicGaussians``."""
 
+    # the paper's rates (docs/design.md §4); LearningRates repeats them under these keys (lr.durations=...)
+    LEARNING_RATES: ClassVar[dict[str, float]] = {"durations": 5e-3, "times": 1.6e-4, "velocities": 1.6e-3,
+                                                  "gates": 1e-3}  # fmt: skip
     EXTENT_SCALED: ClassVar[tuple[str, ...]] = ("means", "velocities")
     DECAYING: ClassVar[tuple[str, ...]] = ("means", "velocities")
-    FUSED_CPU: ClassVar[bool] = True  # ftgspp.render.prepare evaluates exactly this model
 
     # --- construction -------------------------------------------------------------------
     @classmethod
@@ -127,6 +132,23 @@ class FreeTimeGaussians(DynamicGaussians):
             shN=p["shN"],
         )
 
+    def prepare_cpu(self, t: float, camera: CameraTensors, sh_degree: int) -> tuple[Projected, GaussiansAt] | None:
+        """The fused stage (``freetime_fused.prepare``): exactly ``at_time``, SH colour and projection.
+        None with ``model.fused_stage=false``, or for a subclass that redefines what the parameters mean
+        at t (``_FUSED_FORMULAS``): the kernel knows only these formulas, so it renders through the
+        generic path."""
+        if self.cfg.fused_stage is False:
+            return None
+        if any(getattr(type(self), name) is not getattr(FreeTimeGaussians, name) for name in _FUSED_FORMULAS):
+            return None
+        from ftgspp.methods.freetime_fused import prepare  # Numba: imported on the first cpu render
+
+        p, cfg = self.params, self.cfg
+        prep = prepare(p, t, camera, sh_degree, cfg.max_duration, cfg.gate, cfg.gate_gamma)
+        g = GaussiansAt(means=prep.means, quats=p["quats"], opacities=prep.opacities, temporal=prep.temporal,
+                        log_scales=p["scales"], sh0=p["sh0"], shN=p["shN"])  # fmt: skip
+        return prep.projected, g
+
     def lifetimes(self, threshold: float) -> torch.Tensor:
         """Effective lifetime: how long o·φ(t) stays ≥ θ, in seconds, ``[N]``.
 
@@ -143,6 +165,10 @@ class FreeTimeGaussians(DynamicGaussians):
         life = 2.0 * s * torch.sqrt(2.0 * torch.log(1.0 / a_star.clamp(min=1e-30, max=1.0)))
         life = torch.where(a_star >= 1.0, torch.zeros_like(life), life)
         return torch.where(a_star <= 0.0, torch.full_like(life, math.inf), life)
+
+
+# what the fused kernel computes itself: a subclass redefining one of these renders through at_time
+_FUSED_FORMULAS = ("at_time", "temporal_opacity", "temporal_scale", "gate", "base_opacity")
 
 
 def duration_to_param(duration: float, max_duration: float | None) -> float:
