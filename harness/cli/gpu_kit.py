@@ -84,11 +84,10 @@ def _target_flags(python: str) -> list[str]:
 
 
 def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
+    """The file's SHA-256 (``hashlib.file_digest``: the kit must not import ftgspp, whose LPIPS
+    module has the same helper but imports torch)."""
     with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def wheel_metadata(path: Path) -> email.message.Message:

@@ -121,8 +121,8 @@ def raster_parity(device: torch.device | str, n: int = 300, width: int = 80, hei
 def relocation_parity(device: torch.device | str, n: int = 40) -> dict[str, Any]:
     """This project's MCMC relocation and gsplat's ``strategy.ops.relocate`` on the same dead
     Gaussians and sources (two of them shared by 3 and 4 copies: Eq. 9's n > 1), after three
-    Adam steps: the largest relative parameter difference and the largest Adam-moment
-    difference, ``passed``."""
+    Adam steps: the largest relative parameter difference, the largest Adam-moment difference,
+    whether the destinations keep their second moments (gsplat does), ``passed``."""
     from gsplat.strategy import ops as gs_ops
     from torch import nn
 
@@ -173,8 +173,9 @@ def relocation_parity(device: torch.device | str, n: int = 40) -> dict[str, Any]
         for key in ("exp_avg", "exp_avg_sq"):
             ours_m, gs_m = opt.state[params[name]][key], gs_opts[name].state[gs_params[name]][key]
             moment_diff = max(moment_diff, (ours_m - gs_m).abs().max().item())
-    return {"params": param_diff, "moments": moment_diff,
-            "passed": param_diff <= RELOCATION_TOLERANCE and moment_diff <= 1e-7}  # fmt: skip
+    kept = bool((opt.state[params["means"]]["exp_avg_sq"][dead.to(device)] > 0).all())  # as in gsplat
+    return {"params": param_diff, "moments": moment_diff, "destination_moments_kept": kept,
+            "passed": param_diff <= RELOCATION_TOLERANCE and moment_diff <= 1e-7 and kept}  # fmt: skip
 
 
 def suite(device: torch.device | str) -> dict[str, dict[str, Any]]:

@@ -43,8 +43,9 @@ class DeadlineTracker:
         self.steps: list[tuple[int, float]] = []  # (iteration, perf_counter seconds)
 
     def log_params(self, params: dict[str, Any]) -> None:
-        self.loop_start = time.perf_counter()
-        self.n_gaussians = int(params.get("n_gaussians_init", 0))
+        if "n_gaussians_init" in params:  # logged once, before the loop (render_stage comes later)
+            self.loop_start = time.perf_counter()
+            self.n_gaussians = int(params["n_gaussians_init"])
 
     def log_metrics(self, metrics: dict[str, float], step: int | None = None) -> None:
         if step is None:
