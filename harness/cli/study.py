@@ -140,6 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
     budget.add_argument("--jobs", type=int, default=None, help="parallel runs (default: one per core, at most 2)")
     budget.add_argument("--out", type=Path, default=USER_REPORTS / "budget", help="where the result goes")
     budget.add_argument("overrides", nargs="*", help="Hydra overrides for every run, e.g. model=ftgspp")
+    from harness.cli.prune_study import add_parser as add_prune
+
+    add_prune(sub, _selection_args, USER_REPORTS)
     index = sub.add_parser("index", help="index.md: one row per claim of every study with runs")
     index.add_argument("--out", type=Path, default=USER_REPORTS, help=f"reports root (default: {USER_REPORTS})")
     index.add_argument("--profile", choices=PROFILES, default=None,
@@ -352,6 +355,10 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_budget(args)
         if args.command == "check":
             return cmd_check(args)
+        if args.command == "prune":
+            from harness.cli.prune_study import cmd_prune
+
+            return cmd_prune(args, _selection(args, required=True), sys.argv[1:] if argv is None else argv)
         if args.command == "measure":
             from harness.cli.measure import measure_study
 
