@@ -139,6 +139,8 @@ def collect_findings(root: Path, studies_dir: Path | None = None) -> dict[str, f
             _table(study, folder / "method_comparison.csv", "methods", ["scene", "budget", "iterations"], out)
         for page in sorted(folder.glob("*/budget.csv")):  # study budget --out reports/budget
             _table(f"{study}.{_slug(page.parent.name)}", page, "budget", ["budget"], out)
+        for page in sorted(folder.glob("*/settled.csv")):  # study prune --out reports/pruning
+            _table(f"{study}.{_slug(page.parent.name)}", page, "keep", ["keep"], out)
     if (root / "claims.csv").is_file():  # the index's verdicts: corrected over every study
         for _, r in pd.read_csv(root / "claims.csv").iterrows():
             for col in ("effect", "ci_low", "ci_high", "ci_adj_low", "ci_adj_high", "sesoi", "p", "p_tost", "p_adj",

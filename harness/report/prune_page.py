@@ -1,4 +1,4 @@
-"""The page of ``study prune``: ``curve.csv``, ``curve.png`` and ``index.md`` under
+"""The page of ``study prune``: ``curve.csv``, ``settled.csv``, ``curve.png`` and ``index.md`` under
 ``OUT/<study>_<variant>_<scene>/`` (held-out PSNR, colour-aligned PSNR and LPIPS against the
 Gaussians kept, beside runs trained at smaller budgets, and the smallest settled fraction)."""
 
@@ -48,9 +48,12 @@ def write_page(args: argparse.Namespace, frame: pd.DataFrame, settled: pd.DataFr
     out = Path(args.out) / f"{args.name}_{variant}_{scene}"
     out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(out / "curve.csv", index=False)
+    base = frame[~frame.pruned]
+    unpruned = pd.DataFrame([{"keep": 1.0, "n_gaussians": base.n_gaussians.mean(), "psnr": base.psnr.mean(),
+                              "loss": 0.0, "n": len(base)}])
+    pd.concat([unpruned, settled], ignore_index=True).assign(sesoi=sesoi).to_csv(out / "settled.csv", index=False)
     title = f"{args.name}: {variant} on {scene}, pruned by significance, {args.recover} recovery iterations"
     _plot(frame, compare, title, out / "curve.png")
-    base = frame[~frame.pruned]
     lines = [f"# Pruning `{variant}` on `{scene}` ({args.name})", "",
              f"Every finished run of `{variant}` ({len(base)} seeds, {base.n_gaussians.mean():,.0f} Gaussians) pruned"
              f" to the kept fractions by spatio-temporal significance, then {args.recover} recovery iterations"

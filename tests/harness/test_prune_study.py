@@ -52,6 +52,7 @@ def test_the_page_names_the_smallest_settled_fraction_and_the_budget_trained_run
     assert "| `small` | 5,000 | 31.10 | 2 |" in text
     assert (page.parent / "curve.png").stat().st_size > 0
     assert len(pd.read_csv(page.parent / "curve.csv")) == len(frame)
+    assert list(pd.read_csv(page.parent / "settled.csv").keep) == [1.0, 0.5, 0.25, 0.1]
 
 
 @pytest.mark.parametrize("keep", ["0", "1.5", "half", ""])
