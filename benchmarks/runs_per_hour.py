@@ -53,7 +53,7 @@ profiles:
   quick:
     jobs: {jobs}
     seeds: {runs}
-    overrides: [profile={profile}]
+    overrides: [profile={profile}{extra}]
     scenes:
       - {{name: {preset}, synth: {{preset: {preset}, seed: 0}}}}
     command: study run rph --profile quick
@@ -123,6 +123,11 @@ def target_environment(target: str, cache: Path) -> dict[str, str]:
     return {**isa_target_environment(target), "NUMBA_CACHE_DIR": str(cache)}
 
 
+def study_yaml(jobs: int, runs: int, profile: str, preset: str, overrides: list[str]) -> str:
+    """The one-variant study the benchmark runs, every run with ``profile`` and ``overrides``."""
+    return STUDY.format(jobs=jobs, runs=runs, profile=profile, preset=preset, extra="".join(f", {o}" for o in overrides))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=6)
@@ -131,6 +136,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--profile", default="quick", help="the trainer profile of each run (quick or smoke)")
     p.add_argument("--target", default="host", help="LLVM CPU to compile the kernels for (default: host)")
     p.add_argument("--gc-log", action="store_true", help="time the garbage collector in every process")
+    p.add_argument("--override", action="append", default=[],
+                   help="a Hydra override for every run, repeatable (STGS as the studies train it:"
+                        " --override model=stg --override lr.scale=3)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     if args.target != "host":
@@ -146,8 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         work = Path(tmp)
         studies = work / "studies"
         studies.mkdir()
-        (studies / "rph.yaml").write_text(STUDY.format(jobs=args.jobs, runs=args.runs, profile=args.profile,
-                                                       preset=args.preset))
+        (studies / "rph.yaml").write_text(study_yaml(args.jobs, args.runs, args.profile, args.preset, args.override))
         # this machine's own kernels unless --target: no inherited CPU or dispatch choices
         from ftgspp.bench.isa import without_isa_choices
 
@@ -185,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
                              **{p: rec.metrics[p] for p in PHASES if p in rec.metrics}})
         collections = summarise_gc(gc_log) if args.gc_log else None
     result = {**summarise(wall, runs, start, args.jobs), "jobs": args.jobs, "preset": args.preset, "profile": args.profile,
-              "target": args.target,
+              "overrides": args.override, "target": args.target,
               "cpu_count": os.cpu_count(), "load_average_after": os.getloadavg()[0]}
     if collections is not None:
         result["gc_per_process"] = collections

@@ -83,3 +83,13 @@ def test_gc_summary_orders_processes_by_full_collection_seconds(tmp_path: Path) 
     assert [p["pid"] for p in out] == [10, 11, 12]
     assert out[0]["gen2"] == 2 and out[0]["gen2_s"] == pytest.approx(0.75)
     assert out[1]["gen1"] == 1 and out[2]["gen2"] == 0
+
+
+def test_overrides_reach_every_run_of_the_benchmarks_study(tmp_path: Path) -> None:
+    """``--override model=stg --override lr.scale=3`` times STGS as the studies train it."""
+    from harness.spec.study_files import load_study
+
+    (tmp_path / "rph.yaml").write_text(load().study_yaml(2, 4, "quick", "studio", ["model=stg", "lr.scale=3"]))
+    spec = load_study("rph", studies_dir=tmp_path)
+    assert list(spec.profiles["quick"].overrides) == ["profile=quick", "model=stg", "lr.scale=3"]
+    assert spec.profiles["quick"].seeds == 4
