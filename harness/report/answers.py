@@ -146,7 +146,24 @@ def size_sentence(root: Path) -> str:
         text += (" `study budget` (FreeTimeGS, 3 seeds a budget; doubling until a doubling's gain is settled inside"
                  " the SESOI, then the smallest budget whose gap to the best is settled below it): "
                  + ", ".join(searches) + ".")
+    pruned = [_pruning(page) for page in sorted((root / "pruning").glob("*/settled.csv"))]
+    if pruned:
+        text += " Pruning by significance (`study prune`, then a recovery fine-tune): " + "; ".join(pruned) + "."
     return text.strip()
+
+
+def _pruning(page: Path) -> str:
+    """One page of ``study prune``: its unpruned model, the smallest fraction settled within the
+    SESOI of it (paired by seed), or that none is."""
+    table = _read(page)
+    base = table[table.keep == 1].iloc[0]
+    ok = table[(table.keep < 1) & table.settled.fillna(False).astype(bool)]
+    head = f"{page.parent.name} ({base.n_gaussians:,.0f} Gaussians, {base.psnr:.2f} dB)"
+    if ok.empty:
+        return f"{head}: no kept fraction settled within {table.sesoi.iloc[0]:g} dB with {int(base.n)} seeds"
+    r = ok.sort_values("keep").iloc[0]
+    return (f"{head}: {r.n_gaussians:,.0f} kept ({r.keep:g}) settled within {table.sesoi.iloc[0]:g} dB"
+            f" ({r.psnr:.2f} dB)")
 
 
 def stability_sentence(root: Path) -> str:

@@ -104,3 +104,18 @@ def test_the_size_answer_gives_drawn_gaussians_bytes_the_gap_and_the_control(tmp
             " 2.00× the K = 500 that drew it; started from the true Gaussians at K: 41.23 dB.") in s
     assert "16,000" not in s  # the noise-free page gives way to the noisy one
     assert "static ≥ 40,000 Gaussians (not saturated at the cap; 14 runs a budget would settle it; 21,000 drawn)" in s
+
+
+def test_pruning_pages_join_the_size_sentence_with_their_smallest_settled_fraction(tmp_path: Path) -> None:
+    def page(name: str, settled: list[bool]) -> None:
+        (tmp_path / "pruning" / name).mkdir(parents=True)
+        rows = [{"keep": 1.0, "n_gaussians": 20000, "psnr": 32.6, "loss": 0.0, "n": 3, "settled": None}]
+        rows += [{"keep": k, "n_gaussians": 20000 * k, "psnr": 32.5, "loss": 0.1, "n": 3, "settled": s}
+                 for k, s in zip((0.5, 0.25, 0.1), settled)]
+        pd.DataFrame(rows).assign(sesoi=0.2).to_csv(tmp_path / "pruning" / name / "settled.csv", index=False)
+
+    page("a", [True, True, False])
+    page("b", [False, False, False])
+    text = size_sentence(tmp_path)
+    assert "a (20,000 Gaussians, 32.60 dB): 5,000 kept (0.25) settled within 0.2 dB" in text
+    assert "b (20,000 Gaussians, 32.60 dB): no kept fraction settled within 0.2 dB with 3 seeds" in text
