@@ -17,7 +17,7 @@ import torch
 from ftgspp.checkpoint import load_run
 from ftgspp.config import InitConfig, ModelConfig, TrainConfig
 from ftgspp.data.scene import Camera, Scene
-from ftgspp.model import FreeTimeGaussians, duration_to_param
+from ftgspp.methods.freetime import FreeTimeGaussians, duration_to_param
 from ftgspp.pruning import keep_top, kept_count, prune_run, recovery_config, significance, view_significance
 from ftgspp.render.project import project
 from ftgspp.strategy import Relocator
