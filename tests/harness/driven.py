@@ -35,7 +35,8 @@ class Driven:
         self.out, self.err = Path(f"{name}.out"), Path(f"{name}.err")
         argv = [sys.executable, "-m", module] if module else [sys.executable, str(HERE / "gated.py")]
         with open(self.out, "w") as out, open(self.err, "w") as err:
-            self.proc = subprocess.Popen([*argv, *args], env=environ, stdout=out, stderr=err)
+            self.proc = subprocess.Popen([*argv, *args], env=environ, stdout=out, stderr=err,
+                                         preexec_fn=_default_stop_signals)
 
     @property
     def pid(self) -> int:
@@ -94,3 +95,14 @@ def no_processes_left(folder: Path) -> list[str]:
     while (left := processes_in(folder)) and time.monotonic() < deadline:
         time.sleep(0.1)
     return left
+
+
+def _default_stop_signals() -> None:
+    """The child starts with SIGINT, SIGTERM and SIGHUP at their defaults, as from a terminal: a
+    suite started with ``nohup`` or in the background (``make test &``) passes SIG_IGN for SIGHUP
+    and SIGINT to every descendant, and a process that inherits an ignored signal keeps ignoring it
+    (``harness/run/stopping.on_signals``, as a shell user who ran ``nohup study run`` expects)."""
+    import signal
+
+    for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(s, signal.SIG_DFL)
