@@ -13,8 +13,8 @@ trained at those sizes, and the smallest kept fraction whose loss against the un
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -58,13 +58,13 @@ def _run_dirs(data: Any) -> list[tuple[int, Path, dict[str, float]]]:
 
 
 def _pruned(run_dir: Path, keep: float, recover: int) -> dict[str, Any]:
-    from ftgspp.pruning import prune_run
+    """``prune_run``'s result, read back from its default folder when an earlier call wrote it."""
+    from ftgspp.pruning import default_out, prune_run
 
-    folder = run_dir / "pruned" / f"keep{keep:g}_recover{recover}"
-    done = folder / "prune.json"
+    done = default_out(run_dir, keep, recover) / "prune.json"
     if done.is_file():
         return json.loads(done.read_text())
-    return prune_run(run_dir, keep, recover, out_dir=folder)
+    return prune_run(run_dir, keep, recover)
 
 
 def curve_frame(runs: list[tuple[int, Path, dict[str, float]]], keeps: list[float], recover: int,
@@ -127,14 +127,9 @@ def cmd_prune(args: argparse.Namespace, selection: Any, argv: list[str]) -> int:
     frame = curve_frame(runs, keeps, args.recover)
     compare = None
     if args.compare:
-        sel = type(selection)(**{**selection.__dict__, "variants": args.compare.split(",")})
-        cdf = collect(args.name, sel).df
+        cdf = collect(args.name, dataclasses.replace(selection, variants=args.compare.split(","))).df
         compare = cdf[cdf.status == "FINISHED"]
     sesoi = size_tolerance("psnr")
     page = write_page(args, frame, settled_loss(frame, sesoi), compare, sesoi, argv)
     print(f"report: {page}")
     return 0
-
-
-if __name__ == "__main__":  # pragma: no cover - reached through `study prune`
-    sys.exit("use: study prune NAME ...")

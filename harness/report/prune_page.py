@@ -41,7 +41,7 @@ def _plot(frame: pd.DataFrame, compare: pd.DataFrame | None, title: str, path: P
 
 def write_page(args: argparse.Namespace, frame: pd.DataFrame, settled: pd.DataFrame, compare: pd.DataFrame | None,
                sesoi: float, argv: list[str]) -> Path:
-    """Write the three files; returns the page's path."""
+    """Write curve.csv, settled.csv, curve.png and index.md; returns the page's path."""
     from harness.tracking.provenance import git_sha, trainer_fingerprint
 
     variant, scene = args.variants[0], args.scenes[0]
