@@ -26,6 +26,8 @@ import time
 from collections import defaultdict
 from typing import Any, Callable
 
+import numpy as np
+
 # (phase, "module:attribute.path"). The first seams that exist are wrapped; a missing one
 # (another backend, an older module layout) is skipped, and its time lands in its parent.
 SEAMS: tuple[tuple[str, str], ...] = (
@@ -81,6 +83,8 @@ class PhaseTimer:
         self._undo: list[tuple[Any, str, Any]] = []
         self._in_loop = False
         self.loop_seconds = 0.0  # wall time inside the trainer's loop
+        # the cpu rasterizer's work inside the loop (``_count_work``): what its time is spent on
+        self.work: dict[str, int] = defaultdict(int)
 
     def _gate(self, fn: Callable) -> Callable:
         """Wrap the trainer's loop: phases are recorded only while it runs."""
@@ -116,11 +120,35 @@ class PhaseTimer:
 
         return timed
 
+    def _count_work(self, fn: Callable) -> Callable:
+        """Wrap ``cpu._forward``: per rendered view, its (tile, Gaussian) pairs, the pairs that
+        reached some pixel, the Gaussians with a pair, and the slots every pixel walked through its tile's depth-sorted list
+        (``stop_slot``: where the pixel stopped, else the list's length): the rasterizer's work."""
+
+        @functools.wraps(fn)
+        def counted(*args, **kwargs):
+            binning, fwd = fn(*args, **kwargs)
+            if self._in_loop:
+                self.work["views"] += 1
+                self.work["Gaussians drawn"] += int(np.count_nonzero(np.diff(binning.gauss_off)))
+                self.work["tile pairs"] += int(binning.offsets[-1])
+                self.work["live pairs"] += int(fwd.pair_live.sum())
+                self.work["pixel slots"] += int(fwd.stop_slot.sum(dtype=np.int64))
+                self.work["pixels"] += int(fwd.stop_slot.size)
+            return binning, fwd
+
+        return counted
+
     def __enter__(self) -> "PhaseTimer":
         import ftgspp.trainer as trainer
 
         self._undo.append((trainer, "_loop", trainer._loop))
         trainer._loop = self._gate(trainer._loop)
+        found = _resolve("ftgspp.render.cpu:_forward")
+        if found is not None:
+            owner, attr, raw = found
+            setattr(owner, attr, self._count_work(raw))
+            self._undo.append((owner, attr, raw))
         for phase, target in self.seams:
             found = _resolve(target)
             if found is None:
@@ -146,3 +174,17 @@ class PhaseTimer:
         ms = {phase: 1000.0 * self.totals[phase] / iterations for phase in ORDER if phase in self.totals}
         ms["other (Python, glue)"] = 1000.0 * self.loop_seconds / iterations - sum(ms.values())
         return ms
+
+    def work_per_view(self) -> dict[str, float]:
+        """The cpu rasterizer's work per rendered view (empty when it never ran in the loop), and
+        its forward + backward time per pixel slot walked (ns): equal costs per slot say a time gap
+        between two methods is work, not code."""
+        views = self.work.get("views", 0)
+        if not views:
+            return {}
+        out = {"Gaussians drawn": self.work["Gaussians drawn"] / views,
+               "tile pairs": self.work["tile pairs"] / views, "live pairs": self.work["live pairs"] / views,
+               "slots per pixel": self.work["pixel slots"] / self.work["pixels"]}
+        raster_s = self.totals.get("rasterize forward", 0.0) + self.totals.get("rasterize backward", 0.0)
+        out["rasterize ns per pixel slot"] = 1e9 * raster_s / max(self.work["pixel slots"], 1)
+        return out

@@ -95,11 +95,14 @@ def bench_train(
             for m, b, k in rows:
                 per_it[k].append(1000.0 * run(m, b, r, iterations).metrics["train_seconds"] / iterations)
         phases: dict[str, dict[str, float]] = {}
+        work: dict[str, dict[str, float]] = {}
         if breakdown:
             for m, b, k in rows:
                 with PhaseTimer() as timer:
                     run(m, b, "phases", iterations)
                 phases[k] = timer.per_iteration(iterations)
+                if timer.work_per_view():
+                    work[k] = timer.work_per_view()
     ms = {k: statistics.median(v) for k, v in per_it.items()}
     out = {
         "iterations": iterations, "budget": budget, "width": width, "height": height, "repeats": repeats,
@@ -111,6 +114,7 @@ def bench_train(
         out["ratio_vs_first_model"] = {k: ms[k] / ms[key(models[0], b)] for m, b, k in rows}
     if breakdown:
         out["breakdown"] = phases
+        out["work"] = work
     return out
 
 
@@ -129,6 +133,18 @@ def format_train_table(result: dict[str, Any]) -> str:
                      f"{(f'{sp:.1f}x' if sp else '-'):>13}" + (f" {vs_first:>9.2f}x" if vs_first else ""))
     if result.get("breakdown"):
         lines += ["", format_breakdown(result["breakdown"])]
+    if result.get("work"):
+        lines += ["", format_work(result["work"])]
+    return "\n".join(lines)
+
+
+def format_work(work: dict[str, dict[str, float]]) -> str:
+    """The cpu rasterizer's work per rendered view (``PhaseTimer.work_per_view``), rows as columns."""
+    names = list(work)
+    lines = ["cpu rasterizer work per rendered view (same instrumented run)",
+             f"{'':<30}" + "".join(f"{b:>12}" for b in names)]
+    for key in next(iter(work.values())):
+        lines.append(f"{key:<30}" + "".join(f"{work[b].get(key, float('nan')):>12.2f}" for b in names))
     return "\n".join(lines)
 
 

@@ -42,7 +42,16 @@ def test_breakdown_covers_the_pipeline_and_adds_up(capsys):
     assert lines[1].startswith("host ") and "Numba kernels for" in lines[1]  # the ISA it ran with
     assert [line.split()[0] for line in lines[3:5]] == ["cpu", "reference"] and lines[4].split()[-1] == "1.0x"
     assert lines[6].startswith("per-phase ms per iteration") and lines[7].split()[1:] == ["cpu", "reference"]
-    assert lines[-1].startswith("total") and len(lines) == 8 + len(set(cpu) | set(ref)) + 1
+    n_phase_lines = 8 + len(set(cpu) | set(ref)) + 1
+    assert lines[n_phase_lines - 1].startswith("total")
+    # the rasterizer's work: counted on the cpu backend only (the reference renderer has no tiles)
+    assert set(out["work"]) == {"cpu"}
+    work = out["work"]["cpu"]
+    assert 0 < work["Gaussians drawn"] <= 200  # the budget
+    assert work["Gaussians drawn"] <= work["tile pairs"] and 0 < work["live pairs"] <= work["tile pairs"]
+    assert work["slots per pixel"] > 0 and work["rasterize ns per pixel slot"] > 0
+    assert lines[n_phase_lines + 1].startswith("cpu rasterizer work per rendered view")
+    assert len(lines) == n_phase_lines + 3 + len(work)
 
 
 class Pipeline:
