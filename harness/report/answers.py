@@ -15,6 +15,7 @@ puts them above its figures; FINDINGS.md cites the same numbers.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import pandas as pd
@@ -149,7 +150,54 @@ def size_sentence(root: Path) -> str:
     pruned = [_pruning(page) for page in sorted((root / "pruning").glob("*/settled.csv"))]
     if pruned:
         text += " Pruning by significance (`study prune`, then a recovery fine-tune): " + "; ".join(pruned) + "."
+    compared = [search_against_pruning(scene, search, page) for scene, search, page in _search_and_pruning(root)]
+    if compared:
+        text += " Budget search against pruning, FreeTimeGS, per scene: " + "; ".join(compared) + "."
     return text.strip()
+
+
+_PRUNED_FROM = re.compile(r"_(?P<method>[a-z0-9]+)_b\d+k?_i\d+k?_(?P<scene>[A-Za-z0-9_]+)$")
+
+
+def _search_and_pruning(root: Path) -> list[tuple[str, pd.DataFrame, pd.DataFrame]]:
+    """(scene, its ``study budget`` page, a FreeTimeGS pruning page of it) for every scene that has
+    both: the budget finder trains FreeTimeGS, so only FreeTimeGS's pruning answers the same question."""
+    found = []
+    for page in sorted((root / "pruning").glob("*/settled.csv")):
+        m = _PRUNED_FROM.search(page.parent.name)
+        search = root / "budget" / f"budget_{m.group('scene')}" / "budget.csv" if m else None
+        if m and m.group("method") == "ftgs" and search.is_file():
+            found.append((m.group("scene"), _read(search), _read(page)))
+    return found
+
+
+def search_against_pruning(scene: str, search: pd.DataFrame, pruned: pd.DataFrame) -> str:
+    """One scene's smallest model by the two routes, against the budget search's best mean PSNR: the
+    search's chosen budget (settled or not), the fewest Gaussians pruning keeps with a mean within
+    the SESOI of that best (settled when its paired loss to the unpruned model is), and which route
+    gives the answer: the smaller settled one, else "neither settles"."""
+    sesoi = float(search.sesoi.iloc[0])
+    best = search.loc[search.psnr_mean.idxmax()]
+    row = search[search.chosen].iloc[0]
+    search_settled = bool(search.saturated.iloc[0]) and bool(search.settled.iloc[0])
+    head = (f"{scene}: the search's best {best.psnr_mean:.2f} dB at {best.budget:,.0f}, its answer "
+            + (f"{row.budget:,.0f}" if search_settled else f"≥ {row.budget:,.0f} (not settled)"))
+    close = pruned[(pruned.keep < 1) & (pruned.psnr >= best.psnr_mean - sesoi)].sort_values("n_gaussians")
+    if close.empty:
+        return head + f"; no pruned model within {sesoi:g} dB of that best: the search gives the answer"
+    p = close.iloc[0]
+    settled = bool(p.settled) if pd.notna(p.settled) else False
+    base = pruned[pruned.keep == 1].iloc[0]
+    text = (f"{head}; pruning {base.n_gaussians:,.0f} → {p.n_gaussians:,.0f} keeps {p.psnr:.2f} dB"
+            f" ({'settled' if settled else 'not settled'} against the unpruned model with {int(p.n)} seeds:"
+            f" loss [{p.loss_low:+.2f}, {p.loss_high:+.2f}] dB)")
+    routes = [(row.budget, "the search")] if search_settled else []
+    routes += [(p.n_gaussians, "pruning")] if settled else []
+    if not routes:
+        return text + "; neither settles" + (", pruning gives the smaller model at the same mean"
+                                              if p.n_gaussians < row.budget else "")
+    n, route = min(routes)
+    return text + f"; the answer, {n:,.0f} Gaussians, comes from {route}"
 
 
 def _pruning(page: Path) -> str:

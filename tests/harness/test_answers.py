@@ -119,3 +119,38 @@ def test_pruning_pages_join_the_size_sentence_with_their_smallest_settled_fracti
     text = size_sentence(tmp_path)
     assert "a (20,000 Gaussians, 32.60 dB): 5,000 kept (0.25) settled within 0.2 dB" in text
     assert "b (20,000 Gaussians, 32.60 dB): no kept fraction settled within 0.2 dB with 3 seeds" in text
+
+
+def _search_page(root: Path, scene: str, psnr: list[float], chosen: int, settled: bool) -> None:
+    budgets = [500 * 2**i for i in range(len(psnr))]
+    _write(root, f"budget/budget_{scene}/budget.csv", [
+        {"budget": b, "n": 3, "psnr_mean": p, "chosen": i == chosen, "best": p == max(psnr), "saturated": settled,
+         "settled": settled, "sesoi": 0.2, "runs_needed": 40.0} for i, (b, p) in enumerate(zip(budgets, psnr))])
+
+
+def _pruning_page(root: Path, name: str, kept: list[tuple[int, float, bool]]) -> None:
+    rows = [{"keep": 1.0, "n_gaussians": 8000, "psnr": 30.0, "loss": 0.0, "n": 3, "settled": None}]
+    rows += [{"keep": n / 8000, "n_gaussians": n, "psnr": p, "loss": 0.1, "loss_low": -0.1, "loss_high": 0.15,
+              "n": 3, "settled": s} for n, p, s in kept]
+    (root / "pruning" / name).mkdir(parents=True)
+    pd.DataFrame(rows).assign(sesoi=0.2).to_csv(root / "pruning" / name / "settled.csv", index=False)
+
+
+def test_the_search_and_pruning_are_compared_per_scene_and_the_smaller_settled_answer_wins(tmp_path: Path) -> None:
+    # scene a: the search settles at 2,000 (30.0 dB best at 4,000); pruning keeps 1,000 within 0.2 dB, settled
+    _search_page(tmp_path, "a", [27.0, 29.0, 29.9, 30.0], chosen=2, settled=True)
+    _pruning_page(tmp_path, "sa_ftgs_b8000_i3000_a", [(4000, 30.1, True), (1000, 29.85, True), (500, 28.0, True)])
+    # scene b: nothing settles; pruning's 2,000 is within 0.2 dB of the search's best in the mean
+    _search_page(tmp_path, "b", [27.0, 29.0, 29.9, 30.0], chosen=3, settled=False)
+    _pruning_page(tmp_path, "sa_ftgs_b8000_i3000_b", [(2000, 29.9, False)])
+    # another method's pruning answers another question: left out; so is a scene with no search page
+    _pruning_page(tmp_path, "sa_ftgspp_b8000_i3000_a", [(100, 31.0, True)])
+    _pruning_page(tmp_path, "sa_ftgs_b8000_i3000_c", [(100, 31.0, True)])
+    text = size_sentence(tmp_path).split("Budget search against pruning, FreeTimeGS, per scene: ")[1]
+    a, b = text.rstrip(".").split("; b: ")
+    assert a.startswith("a: the search's best 30.00 dB at 4,000, its answer 2,000; pruning 8,000 → 1,000 keeps 29.85")
+    assert a.endswith("the answer, 1,000 Gaussians, comes from pruning")
+    assert b.startswith("the search's best 30.00 dB at 4,000, its answer ≥ 4,000 (not settled); pruning 8,000 → 2,000")
+    assert "(not settled against the unpruned model with 3 seeds: loss [-0.10, +0.15] dB)" in b
+    assert b.endswith("neither settles, pruning gives the smaller model at the same mean")
+    assert "c:" not in text and "100" not in text

@@ -44,7 +44,7 @@ def test_ablation_rows_are_the_official_configurations(profile: str, monkeypatch
 def test_the_gate_always_comes_with_the_one_second_bound(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
     for root in ("DYNERF_ROOT", "ENERF_OUTDOOR_ROOT", "IMMERSIVE_ROOT"):
         monkeypatch.setenv(root, "/data/n3v")
-    for profile in ("quick", "paper"):
+    for profile in [p for p in ("quick", "paper") if p in load_study(name).profiles]:  # the ones it has
         for variant, p in composed(name, profile).items():
             if p["model.gate"] == "true":
                 assert p["model.max_duration"] == "1.0", f"{name}/{profile}/{variant}: gate without the 1 s bound"
