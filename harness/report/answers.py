@@ -69,15 +69,41 @@ def speed_sentence(root: Path) -> str:
             " scenes: " + ", ".join(parts) + " (per scene and cell: speed_accuracy/index.md).")
 
 
-def _needs(r: pd.Series) -> str:
-    """``static 5,000``; ``≥ 20,000 (no saturation)`` when the largest budget is the best;
-    ``(its best: more scores lower)`` when a smaller budget is the best outright."""
+def _needs(r: pd.Series, runs: pd.DataFrame | None = None, metric: str = "psnr_cc") -> str:
+    """``static 5,000``; ``≥ 20,000 (no saturation)`` when the largest budget is the best, with the
+    runs per budget that would settle the grid's last doubling when ``runs`` (the grid's runs.csv)
+    are given (``grid_runs_needed``); ``(its best: more scores lower)`` when a smaller budget is the
+    best outright."""
     if unsaturated(r):
-        return f"{r.scene_label} ≥ {r.budget:,.0f} (no saturation)"
+        need = grid_runs_needed(runs, r, metric) if runs is not None else math.nan
+        said = (f"; {need:,.0f} runs a budget would settle its last doubling" if math.isfinite(need) else
+                "; more runs than the power search tries would settle it" if need == math.inf else "")
+        return f"{r.scene_label} ≥ {r.budget:,.0f} (no saturation{said})"
     if r.variant == r.best_variant:
         return f"{r.scene_label} {r.budget:,.0f} (its best: more Gaussians score lower)"
     unsettled = pd.isna(r.gap_ci_includes_tol) or str(r.gap_ci_includes_tol) == "True"
     return f"{r.scene_label} {r.budget:,.0f}" + (" (not settled)" if unsettled and r.variant != r.best_variant else "")
+
+
+def grid_runs_needed(runs: pd.DataFrame, r: pd.Series, metric: str) -> float:
+    """Runs per budget that would settle, for ``r``'s scene, method and iterations, the grid's last
+    doubling (its largest budget against half of it) inside ±SESOI: the budget finder's rule
+    (``budget_search.runs_needed`` at the two budgets' pooled SD); NaN when the grid has no such
+    doubling or ``metric``."""
+    from harness.analysis.budget_search import pooled_sd, runs_needed
+    from harness.analysis.speed_accuracy_scenes import method_of
+
+    if runs.empty or not {metric, "budget", "iterations", "scene", "variant"} <= set(runs):
+        return math.nan
+    cell = runs[(runs.scene == r.scene) & (runs.iterations == r.iterations)
+                & (runs.variant.map(method_of) == r.get("method", ""))]
+    if "status" in cell:
+        cell = cell[cell.status == "FINISHED"]
+    top = cell.budget.max()
+    values = [cell.loc[cell.budget == b, metric].dropna().to_numpy(float) for b in (top / 2, top)]
+    if any(len(v) < 2 for v in values):
+        return math.nan
+    return runs_needed(size_tolerance(), pooled_sd(*values))
 
 
 def _known_size_page(root: Path) -> pd.DataFrame:
@@ -120,11 +146,13 @@ def size_sentence(root: Path) -> str:
     aligned = _read(root / "speed_accuracy" / "speed_accuracy_smallest_psnr_cc.csv")
     chosen = aligned if not aligned.empty else _read(root / "speed_accuracy" / "speed_accuracy_smallest.csv")
     metric = "colour-aligned PSNR" if not aligned.empty else "raw PSNR"
+    grid = _read(root / "speed_accuracy" / "runs.csv")
     parts = []
     if not chosen.empty:
         method = chosen["method"].fillna("") if "method" in chosen else pd.Series([""] * len(chosen))
         for m, sub in chosen.groupby(method, sort=False):
-            parts.append((f"`{m}`: " if m else "") + ", ".join(_needs(r) for _, r in sub.iterrows()))
+            parts.append((f"`{m}`: " if m else "") + ", ".join(
+                _needs(r, grid, "psnr_cc" if not aligned.empty else "psnr") for _, r in sub.iterrows()))
     text = ""
     if parts:
         text = (f"**The smallest sufficient model** (within the SESOI, {size_tolerance():g} dB, of the best {metric}"

@@ -154,3 +154,29 @@ def test_the_search_and_pruning_are_compared_per_scene_and_the_smaller_settled_a
     assert "(not settled against the unpruned model with 3 seeds: loss [-0.10, +0.15] dB)" in b
     assert b.endswith("neither settles, pruning gives the smaller model at the same mean")
     assert "c:" not in text and "100" not in text
+
+
+def test_an_unsaturated_grid_scene_says_the_runs_that_would_settle_its_last_doubling(tmp_path: Path) -> None:
+    """The runs per budget come from the grid's last doubling of that scene, method and iteration
+    count only (10,000 against 20,000 here), at the two budgets' pooled SD, by the finder's rule."""
+    import numpy as np
+
+    from harness.analysis.budget_search import runs_needed
+
+    row = {"scene": "s", "method": "ftgs", "iterations": 3000.0, "largest_budget": 20000.0, "scene_label": "s"}
+    _write(tmp_path, "speed_accuracy/speed_accuracy_smallest_psnr_cc.csv", [
+        {**row, "budget": 20000.0, "variant": "ftgs_b20000_i3000", "best_variant": "ftgs_b20000_i3000"}])
+    x, y = [35.0, 35.4, 35.2], [35.3, 35.9, 35.6]  # SDs 0.2 and 0.3
+    runs = [{"variant": f"ftgs_b{b}_i3000", "scene": "s", "budget": b, "iterations": 3000.0, "status": "FINISHED",
+             "psnr_cc": v, "psnr": 0.0} for b, vals in ((10000, x), (20000, y)) for v in vals]
+    runs += [{"variant": "ftgs_b5000_i3000", "scene": "s", "budget": 5000, "iterations": 3000.0,  # not the last doubling
+              "status": "FINISHED", "psnr_cc": v, "psnr": 0.0} for v in (20.0, 30.0, 40.0)]
+    runs += [{"variant": "ftgspp_b10000_i3000", "scene": "s", "budget": 10000, "iterations": 3000.0,  # another method
+              "status": "FINISHED", "psnr_cc": v, "psnr": 0.0} for v in (20.0, 30.0, 40.0)]
+    runs += [{"variant": "ftgs_b20000_i3000", "scene": "s", "budget": 20000, "iterations": 3000.0,  # a failed run
+              "status": "FAILED", "psnr_cc": 10.0, "psnr": 0.0}]
+    _write(tmp_path, "speed_accuracy/runs.csv", runs)
+    sd = float(np.sqrt((np.var(x, ddof=1) + np.var(y, ddof=1)) / 2))  # equal n: the pooled SD by hand
+    need = runs_needed(0.2, sd)
+    assert 2 < need < 100
+    assert f"s ≥ 20,000 (no saturation; {need:,.0f} runs a budget would settle its last doubling)" in size_sentence(tmp_path)
