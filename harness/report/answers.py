@@ -214,13 +214,14 @@ def search_against_pruning(scene: str, search: pd.DataFrame, pruned: pd.DataFram
     if close.empty:
         return head + f"; no pruned model within {sesoi:g} dB of that best: the search gives the answer"
     p = close.iloc[0]
-    settled = bool(p.settled) if pd.notna(p.settled) else False
+    is_settled = close.settled.map(lambda v: bool(v) if pd.notna(v) else False)
     base = pruned[pruned.keep == 1].iloc[0]
     text = (f"{head}; pruning {base.n_gaussians:,.0f} → {p.n_gaussians:,.0f} keeps {p.psnr:.2f} dB"
-            f" ({'settled' if settled else 'not settled'} against the unpruned model with {int(p.n)} seeds:"
-            f" loss [{p.loss_low:+.2f}, {p.loss_high:+.2f}] dB)")
+            f" ({'settled' if is_settled.iloc[0] else 'not settled'} against the unpruned model with {int(p.n)}"
+            f" seeds: loss [{p.loss_low:+.2f}, {p.loss_high:+.2f}] dB)")
     routes = [(row.budget, "the search")] if search_settled else []
-    routes += [(p.n_gaussians, "pruning")] if settled else []
+    if is_settled.any():  # the fewest kept that is both close to the best and settled
+        routes.append((close[is_settled].n_gaussians.min(), "pruning"))
     if not routes:
         return text + "; neither settles" + (", pruning gives the smaller model at the same mean"
                                               if p.n_gaussians < row.budget else "")

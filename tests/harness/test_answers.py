@@ -180,3 +180,11 @@ def test_an_unsaturated_grid_scene_says_the_runs_that_would_settle_its_last_doub
     need = runs_needed(0.2, sd)
     assert 2 < need < 100
     assert f"s ≥ 20,000 (no saturation; {need:,.0f} runs a budget would settle its last doubling)" in size_sentence(tmp_path)
+
+
+def test_pruning_answers_with_its_fewest_settled_model_when_a_smaller_close_one_is_not_settled(tmp_path: Path) -> None:
+    _search_page(tmp_path, "d", [27.0, 29.0, 29.9, 30.0], chosen=3, settled=False)
+    _pruning_page(tmp_path, "sa_ftgs_b8000_i3000_d", [(2000, 29.95, True), (1000, 29.9, False)])
+    text = size_sentence(tmp_path).split("Budget search against pruning, FreeTimeGS, per scene: ")[1]
+    assert "pruning 8,000 → 1,000 keeps 29.90 dB (not settled" in text
+    assert text.endswith("the answer, 2,000 Gaussians, comes from pruning.")
