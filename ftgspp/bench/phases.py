@@ -122,8 +122,9 @@ class PhaseTimer:
 
     def _count_work(self, fn: Callable) -> Callable:
         """Wrap ``cpu._forward``: per rendered view, its (tile, Gaussian) pairs, the pairs that
-        reached some pixel, the Gaussians with a pair, and the slots every pixel walked through its tile's depth-sorted list
-        (``stop_slot``: where the pixel stopped, else the list's length): the rasterizer's work."""
+        reached some pixel, the Gaussians with a pair, and the slots every pixel walked through its
+        tile's depth-sorted list (``stop_slot``: where the pixel stopped, else the list's length):
+        the rasterizer's work."""
 
         @functools.wraps(fn)
         def counted(*args, **kwargs):

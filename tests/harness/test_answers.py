@@ -150,7 +150,8 @@ def test_the_search_and_pruning_are_compared_per_scene_and_the_smaller_settled_a
     a, b = text.rstrip(".").split("; b: ")
     assert a.startswith("a: the search's best 30.00 dB at 4,000, its answer 2,000; pruning 8,000 → 1,000 keeps 29.85")
     assert a.endswith("the answer, 1,000 Gaussians, comes from pruning")
-    assert b.startswith("the search's best 30.00 dB at 4,000, its answer ≥ 4,000 (not settled); pruning 8,000 → 2,000")
+    assert b.startswith("the search's best 30.00 dB at 4,000, its answer ≥ 4,000 (not settled);"
+                        " pruning 8,000 → 2,000")
     assert "(not settled against the unpruned model with 3 seeds: loss [-0.10, +0.15] dB)" in b
     assert b.endswith("neither settles, pruning gives the smaller model at the same mean")
     assert "c:" not in text and "100" not in text
@@ -169,8 +170,8 @@ def test_an_unsaturated_grid_scene_says_the_runs_that_would_settle_its_last_doub
     x, y = [35.0, 35.4, 35.2], [35.3, 35.9, 35.6]  # SDs 0.2 and 0.3
     runs = [{"variant": f"ftgs_b{b}_i3000", "scene": "s", "budget": b, "iterations": 3000.0, "status": "FINISHED",
              "psnr_cc": v, "psnr": 0.0} for b, vals in ((10000, x), (20000, y)) for v in vals]
-    runs += [{"variant": "ftgs_b5000_i3000", "scene": "s", "budget": 5000, "iterations": 3000.0,  # not the last doubling
-              "status": "FINISHED", "psnr_cc": v, "psnr": 0.0} for v in (20.0, 30.0, 40.0)]
+    runs += [{"variant": "ftgs_b5000_i3000", "scene": "s", "budget": 5000, "iterations": 3000.0,
+              "status": "FINISHED", "psnr_cc": v, "psnr": 0.0} for v in (20.0, 30.0, 40.0)]  # not the last doubling
     runs += [{"variant": "ftgspp_b10000_i3000", "scene": "s", "budget": 10000, "iterations": 3000.0,  # another method
               "status": "FINISHED", "psnr_cc": v, "psnr": 0.0} for v in (20.0, 30.0, 40.0)]
     runs += [{"variant": "ftgs_b20000_i3000", "scene": "s", "budget": 20000, "iterations": 3000.0,  # a failed run
@@ -179,10 +180,11 @@ def test_an_unsaturated_grid_scene_says_the_runs_that_would_settle_its_last_doub
     sd = float(np.sqrt((np.var(x, ddof=1) + np.var(y, ddof=1)) / 2))  # equal n: the pooled SD by hand
     need = runs_needed(0.2, sd)
     assert 2 < need < 100
-    assert f"s ≥ 20,000 (no saturation; {need:,.0f} runs a budget would settle its last doubling)" in size_sentence(tmp_path)
+    said = f"s ≥ 20,000 (no saturation; {need:,.0f} runs a budget would settle its last doubling)"
+    assert said in size_sentence(tmp_path)
 
 
-def test_pruning_answers_with_its_fewest_settled_model_when_a_smaller_close_one_is_not_settled(tmp_path: Path) -> None:
+def test_pruning_answers_with_its_fewest_settled_model_when_a_smaller_close_one_is_not(tmp_path: Path) -> None:
     _search_page(tmp_path, "d", [27.0, 29.0, 29.9, 30.0], chosen=3, settled=False)
     _pruning_page(tmp_path, "sa_ftgs_b8000_i3000_d", [(2000, 29.95, True), (1000, 29.9, False)])
     text = size_sentence(tmp_path).split("Budget search against pruning, FreeTimeGS, per scene: ")[1]
