@@ -43,6 +43,20 @@ def test_the_registry_sorts_metrics_into_training_and_evaluation_sides() -> None
     assert [rep.side(m) for m in ("train_seconds", "loss", "system/cpu_utilization_percentage", "gap_ssim")] == [""] * 4
 
 
+def test_the_inits_measurements_are_compared_with_the_evaluation_and_its_decisions_with_the_training() -> None:
+    """The demo's case on another CPU model (znver4 against znver5, 2026-11-29): models bit for bit
+    equal, the init's float64 measurements 6.5e-16 apart; what the init decided is training."""
+    measured = ("init_dense_sift_disagreement", "init_depth_error_median", "init_depth_error_p90",
+                "init_dense_coverage", "init_velocity_error_moving", "init_velocity_error_static")
+    assert [rep.side(m) for m in measured] == ["evaluation"] * len(measured)
+    assert [rep.side(m) for m in ("init_dense_fallback", "init_points_total", "init_matcher_dense")] == ["training"] * 3
+    ref = [run(model_digest="ab" * 32, init_dense_sift_disagreement=0.0246, init_dense_fallback=0.0)]
+    here = [run(model_digest="ab" * 32, init_dense_sift_disagreement=0.0246 + 6.5e-16, init_dense_fallback=0.0)]
+    assert classify(here, ref)["class"].tolist() == ["evaluation differs"]
+    flipped = [run(model_digest="ab" * 32, init_dense_sift_disagreement=0.0246, init_dense_fallback=1.0)]
+    assert classify(flipped, ref)["class"].tolist() == ["differs unexpectedly"]
+
+
 def test_identical_runs_with_equal_model_bits_ignore_timings() -> None:
     ours = [run(model_digest="ab" * 32, train_seconds=50.0, loss=0.0215, peak_rss_mb=900.0)]
     frame = classify(ours, [run(model_digest="ab" * 32)])
