@@ -21,7 +21,7 @@ import pandas as pd
 
 from harness.analysis import verdicts as V
 from harness.report import COMMITTED_REPORTS
-from harness.report.results import collect, trainer_fingerprints
+from harness.report.results import collect, store_has_runs, trainer_fingerprints
 from harness.spec import registration, study_files
 from harness.spec.metrics import add_differences
 from harness.spec.paper_register import Register
@@ -50,7 +50,10 @@ def store_claims(name: str, register: Register, studies_dir: Path | None = None,
                  profile: str | None = None) -> StudyClaims | None:
     """The study's claims on its runs in the tracking store: every planned run of ``profile`` when
     it is given, else its latest invocation's; None when none finished."""
-    data = collect(name, Selection(profile=profile) if profile else None, studies_dir)
+    sel = Selection(profile=profile) if profile else None
+    if not store_has_runs(name, sel, studies_dir):  # nothing to find: skip planning every run
+        return None
+    data = collect(name, sel, studies_dir)
     n_done = int((data.df.status == "FINISHED").sum())
     if n_done == 0:
         return None

@@ -146,6 +146,22 @@ def _invocation(inv: dict[str, Any]) -> Selection:
     return Selection(**{k: inv[k] for k in ("profile", "seeds", "scenes", "variants", "overrides")})
 
 
+def store_has_runs(name: str, sel: Selection | None = None, studies_dir: Path | None = None) -> bool:
+    """Whether the tracking store the selection's first run names holds any invocation or finished
+    run of the study: when it holds neither, ``collect`` would plan every run (composing each config,
+    most of ``study index``'s time) to find none. Only that first run is planned here."""
+    study = load_study(name, studies_dir)
+    base = sel or Selection()
+    specs = expand(study, base)
+    if not specs:
+        return False
+    uri, exp = tracking_target(base.overrides, plan_runs(specs[:1])[0].params, name)
+    store = open_store(uri)
+    if load_runs(store, exp, name, kind="study"):  # an invocation may name another selection or store
+        return True
+    return any(r.status == "FINISHED" for r in load_runs(store, exp, name))
+
+
 def collect(name: str, sel: Selection | None = None, studies_dir: Path | None = None) -> ReportData:
     """Load the study, plan the selection to report and read its runs (read-only).
 

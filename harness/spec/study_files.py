@@ -19,6 +19,7 @@ prints as one line before exiting 2:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import re
 from pathlib import Path
@@ -96,12 +97,29 @@ def load_study(name: str, studies_dir: Path | None = None) -> StudySpec:
     if name.startswith("_") or not NAME_PATTERN.match(name) or not path.is_file():
         known = ", ".join(list_studies(root)) or "none"
         raise InputError(f"study '{name}'", f"unknown study (known: {known})")
+    sets = root / SCENE_SETS_FILE
+    return _load_study(path, sets, _stamp(path), _stamp(sets))
+
+
+def _stamp(path: Path) -> tuple[int, int] | None:
+    """A file's modification time (ns) and size: what says a parsed copy of it is still current."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return None
+    return st.st_mtime_ns, st.st_size
+
+
+@functools.lru_cache(maxsize=128)
+def _load_study(path: Path, sets: Path, path_stamp: object, sets_stamp: object) -> StudySpec:
+    """``path`` parsed once per version of it and of the scene sets (``study index`` loads every
+    study several times: a parse composes OmegaConf structures, a quarter of a second each).
+    The spec is frozen; an error is raised again on every call (it is not cached)."""
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise InputError(path, f"not valid YAML ({str(exc).splitlines()[0]})") from None
-    sets = root / SCENE_SETS_FILE
-    return parse_study(raw, path, (yaml.safe_load(sets.read_text()) or {}) if sets.is_file() else {})
+    return parse_study(raw, path, (yaml.safe_load(sets.read_text()) or {}) if sets_stamp is not None else {})
 
 
 def parse_study(raw: Any, path: Path, sets: dict[str, Any] | None = None) -> StudySpec:

@@ -252,3 +252,26 @@ def test_smoke_runs_score_lpips_only_where_it_is_the_point() -> None:
 
     assert nets("secret5") == {"[]"}
     assert nets("lpips") == {'["alex", "vgg"]'}
+
+
+def test_a_loaded_study_is_parsed_again_when_its_file_or_the_scene_sets_change(tmp_path: Path) -> None:
+    """load_study keeps one parse per version of the file (study index loads each study many times)."""
+    import os
+
+    studies = Path(__file__).parents[2] / "studies"
+    text = (studies / "secret4.yaml").read_text()
+    (tmp_path / "_scene_sets.yaml").write_text((studies / "_scene_sets.yaml").read_text())
+    (tmp_path / "mine.yaml").write_text(text.replace("name: secret4", "name: mine"))
+    first = load_study("mine", tmp_path)
+    assert load_study("mine", tmp_path) is first  # unchanged: the same parse
+    os.utime(tmp_path / "_scene_sets.yaml", ns=(2, 2))  # the scene sets changed: parsed again
+    assert load_study("mine", tmp_path) is not first
+    first = load_study("mine", tmp_path)
+    (tmp_path / "mine.yaml").write_text(text.replace("name: secret4", "name: mine").replace("seeds: 5", "seeds: 4"))
+    os.utime(tmp_path / "mine.yaml", ns=(1, 1))  # a new version even within one clock tick
+    second = load_study("mine", tmp_path)
+    assert second is not first and second.profiles["quick"].seeds == 4 and first.profiles["quick"].seeds == 5
+    (tmp_path / "mine.yaml").write_text("name: mine\nnot: [valid")  # an error is raised on every call
+    for _ in range(2):
+        with pytest.raises(InputError, match="not valid YAML"):
+            load_study("mine", tmp_path)
