@@ -101,8 +101,8 @@ def bench_train(
                 with PhaseTimer() as timer:
                     run(m, b, "phases", iterations)
                 phases[k] = timer.per_iteration(iterations)
-                if timer.work_per_view():
-                    work[k] = timer.work_per_view()
+                if counted := timer.work_per_view():
+                    work[k] = counted
     ms = {k: statistics.median(v) for k, v in per_it.items()}
     out = {
         "iterations": iterations, "budget": budget, "width": width, "height": height, "repeats": repeats,

@@ -146,20 +146,27 @@ def _invocation(inv: dict[str, Any]) -> Selection:
     return Selection(**{k: inv[k] for k in ("profile", "seeds", "scenes", "variants", "overrides")})
 
 
+def _first_store(study: StudySpec, base: Selection,
+                 specs: list) -> tuple[tuple[str, str], Store | None, list[RunRecord]]:
+    """(tracking target, store, the study's invocations there) that the selection's first run names:
+    only that run is planned."""
+    target = tracking_target(base.overrides, plan_runs(specs[:1])[0].params, study.name)
+    store = open_store(target[0])
+    return target, store, load_runs(store, target[1], study.name, kind="study")
+
+
 def store_has_runs(name: str, sel: Selection | None = None, studies_dir: Path | None = None) -> bool:
     """Whether the tracking store the selection's first run names holds any invocation or finished
     run of the study: when it holds neither, ``collect`` would plan every run (composing each config,
-    most of ``study index``'s time) to find none. Only that first run is planned here."""
+    most of ``study index``'s time) to find none."""
     study = load_study(name, studies_dir)
     base = sel or Selection()
     specs = expand(study, base)
     if not specs:
         return False
-    uri, exp = tracking_target(base.overrides, plan_runs(specs[:1])[0].params, name)
-    store = open_store(uri)
-    if load_runs(store, exp, name, kind="study"):  # an invocation may name another selection or store
-        return True
-    return any(r.status == "FINISHED" for r in load_runs(store, exp, name))
+    (_, exp), store, parents = _first_store(study, base, specs)
+    # an invocation may name another selection or store: collect follows it
+    return bool(parents) or any(r.status == "FINISHED" for r in load_runs(store, exp, name))
 
 
 def collect(name: str, sel: Selection | None = None, studies_dir: Path | None = None) -> ReportData:
@@ -171,9 +178,7 @@ def collect(name: str, sel: Selection | None = None, studies_dir: Path | None = 
     study = load_study(name, studies_dir)
     base = sel or Selection()
     specs = expand(study, base)
-    target = tracking_target(base.overrides, plan_runs(specs[:1])[0].params, name)
-    store = open_store(target[0])
-    parents = load_runs(store, target[1], name, kind="study")
+    target, store, parents = _first_store(study, base, specs)
     inv = None if sel is not None else latest_invocation(parents)
     if inv is not None:
         base = _invocation(inv)
