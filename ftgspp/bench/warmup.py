@@ -8,16 +8,27 @@ on tiny inputs (the rasterizer forward and backward, the fused prepare nodes of 
 STGS, the SSIM loss, the colour-aligned PSNR's fit, the relocation statistics).
 
     python -m ftgspp.bench.warmup        # prints the seconds it took
+
+On two or more cores the cold compile runs in two processes at once: FreeTimeGS's fused stage
+(its backward alone compiles for about a minute) in a child, every other kernel in this one;
+each writes its kernels to the shared on-disk cache. On a 2-core AMD EPYC (AVX-512, LLVM
+``znver4``, 2026-11-29) one process took 129 s cold, its parts 75 s (the fused stage) and 54 s
+(the rest): BENCHMARKS.md.
 """
 
 from __future__ import annotations
 
+import argparse
+import os
+import subprocess
 import sys
 import time
 
-# every kernel compiled cold: 55-59 s on an idle 2-core AMD EPYC with AVX-512 (BENCHMARKS.md,
-# `ftgspp bench render`'s compile probe); 147 s was seen on a loaded machine
-COLD_COMPILE_S = 57.0
+# every kernel compiled cold, in two processes on an idle 2-core AMD EPYC with AVX-512 (LLVM
+# znver4): the fused stage's part, 75 s (BENCHMARKS.md, `python -m ftgspp.bench.warmup`; one
+# process took 129 s; 55-59 s before the fused stages existed)
+COLD_COMPILE_S = 75.0
+PARTS = ("fused", "rest")  # the two halves of the cold compile (``warm_up(part)``)
 
 
 def _dispatchers() -> list:
@@ -42,8 +53,11 @@ def kernels_cached() -> bool:
         return False
 
 
-def warm_up() -> float:
-    """Call every kernel once; returns the seconds it took (compile time when the cache was cold)."""
+def warm_up(part: str | None = None) -> float:
+    """Call every kernel once (``part``: only FreeTimeGS's fused stage, "fused", or every other
+    kernel, "rest"); returns the seconds it took (compile time when the cache was cold)."""
+    if part not in (None, *PARTS):
+        raise ValueError(f"unknown warm-up part {part!r} (one of {PARTS})")
     import numpy as np
     import torch
 
@@ -60,14 +74,17 @@ def warm_up() -> float:
     from ftgspp.strategy import relocate
 
     t0 = time.perf_counter()
+    scene = random_scene(4, 32, 24)
+    camera = CameraTensors(scene["viewmat"], scene["K"], torch.zeros(3), 32, 24)
+    if part != "rest":
+        p = prepare(stage_model(scene, 0).params, 0.5, camera, 3, 1.0, True, 20.0)
+        (p.means2d.sum() + p.colors.sum()).backward()
+    if part == "fused":
+        return time.perf_counter() - t0
     means2d = torch.tensor([[8.0, 8.0], [20.0, 9.0]], requires_grad=True)
     out = cpu.rasterize(means2d, torch.tensor([[0.1, 0.0, 0.1]] * 2), torch.rand(2, 3), torch.rand(2),
                         torch.ones(2), torch.tensor([[6, 6], [6, 6]]), 32, 24)  # radii [N, 2]
     sum(o.sum() for o in out).backward()
-    scene = random_scene(4, 32, 24)
-    camera = CameraTensors(scene["viewmat"], scene["K"], torch.zeros(3), 32, 24)
-    p = prepare(stage_model(scene, 0).params, 0.5, camera, 3, 1.0, True, 20.0)
-    (p.means2d.sum() + p.colors.sum()).backward()
     stg = SpacetimeGaussians.from_points(np.zeros((4, 3)), np.full((4, 3), 0.5), np.zeros(4), np.zeros((4, 3)),
                                          np.ones(4), ModelConfig(name="stg", method="stg", sh_degree=0), InitConfig())
     q = stg_prepare(stg.params, 0.5, camera)
@@ -75,10 +92,38 @@ def warm_up() -> float:
     (1 - ssim_same(torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3))).backward()
     colour_aligned_np(np.random.default_rng(0).random((64, 3)), np.random.default_rng(1).random((64, 3)))
     relocate._add_visible(np.zeros(2, np.float32), np.zeros(2, np.float32), np.ones(2, np.float32),
-                          p.radii.numpy()[:2])
+                          np.array([[2, 2], [0, 0]], np.int32))
     return time.perf_counter() - t0
 
 
+def warm_up_parallel(jobs: int | None = None) -> float:
+    """``warm_up`` with its two parts in two processes at once when there are ``jobs`` >= 2
+    (default: 2 on a machine with 2 cores or more): the fused stage in a child, the rest here.
+    Returns the seconds until both are done; a failed child raises with its last line."""
+    jobs = jobs if jobs is not None else min(2, os.cpu_count() or 1)
+    if jobs < 2:
+        return warm_up()
+    t0 = time.perf_counter()
+    child = subprocess.Popen([sys.executable, "-m", "ftgspp.bench.warmup", "--part", "fused"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        warm_up("rest")
+    finally:
+        _, err = child.communicate()
+    if child.returncode != 0:
+        raise RuntimeError(f"the fused stage's warm-up failed: {(err.strip().splitlines() or ['no output'])[-1]}")
+    return time.perf_counter() - t0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ftgspp.bench.warmup", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--part", choices=PARTS, default=None, help="only this half of the kernels, in this process")
+    parser.add_argument("--jobs", type=int, default=None, help="processes (default: 2 on 2 cores or more)")
+    args = parser.parse_args(argv)
+    seconds = warm_up(args.part) if args.part else warm_up_parallel(args.jobs)
+    print(f"{seconds:.1f}")
+    return 0
+
+
 if __name__ == "__main__":
-    print(f"{warm_up():.1f}")
-    sys.exit(0)
+    sys.exit(main())

@@ -52,3 +52,41 @@ def test_the_kernel_warm_up_runs_every_kernel_it_names() -> None:
     from ftgspp.bench.warmup import warm_up
 
     assert warm_up() >= 0.0  # it raised on the rasterizer's [N, 2] radii before (study run's warm-up failed)
+
+
+PARTS_PROBE = """
+from ftgspp.bench import warmup
+kernels = warmup._dispatchers()
+names = lambda: sorted(d.py_func.__module__.rsplit(".", 1)[-1] + "." + d.py_func.__qualname__
+                       for d in kernels if d.signatures)
+warmup.warm_up("fused")
+print(names())
+warmup.warm_up("rest")
+print(names())
+print(len(kernels))
+"""
+
+
+def test_the_warm_up_halves_together_call_every_kernel_and_the_fused_half_only_its_own() -> None:
+    import sys
+
+    from ftgspp.bench.warmup import warm_up
+
+    out = subprocess.run([sys.executable, "-c", PARTS_PROBE], capture_output=True, text=True, timeout=600, check=True)
+    fused, both, total = out.stdout.strip().splitlines()
+    assert eval(fused) == ["freetime_fused.prepare_backward", "freetime_fused.prepare_forward"]  # FreeTimeGS's, in a fresh process
+    assert len(eval(both)) == int(total)  # every kernel study run's warm-up promises
+    with pytest.raises(ValueError, match="unknown warm-up part"):
+        warm_up("half")
+
+
+def test_the_parallel_warm_up_reports_a_failed_child(monkeypatch) -> None:
+    from ftgspp.bench import warmup
+
+    monkeypatch.setattr(warmup, "warm_up", lambda part=None: 0.0)
+    real = subprocess.Popen
+    monkeypatch.setattr(warmup.subprocess, "Popen",
+                        lambda argv, **kw: real([argv[0], "-c", "import sys; sys.exit('no compiler here')"], **kw))
+    with pytest.raises(RuntimeError, match="fused stage's warm-up failed: no compiler here"):
+        warmup.warm_up_parallel(jobs=2)
+    assert warmup.warm_up_parallel(jobs=1) == 0.0
