@@ -10,6 +10,7 @@
                  --noise-sd SD --control] [overrides]
     study check NAME [--reference runs.csv] [--strict]   same training bits as a committed report, or why not
     study index [--out DIR] [--profile P]  OUT/index.md: every study's claims with verdicts
+    study decide NAME [--profile P] [--spending obf|pocock] [--until-decided]  runs until decided (docs/sequential.md)
 
 Studies live in ``studies/NAME.yaml``. Runs are tracked in MLflow (``sqlite:///mlflow.db``
 in the working directory unless ``MLFLOW_TRACKING_URI`` or ``tracking.uri=`` says
@@ -38,7 +39,7 @@ from pathlib import Path
 from ftgspp.errors import InputError, exit_on_input_error
 from harness.report import COMMITTED_REPORTS, USER_REPORTS
 from harness.run.completion import EXIT_HELD, EXIT_STATUSES
-from harness.run.launchers import LAUNCHERS
+from harness.run.launchers import LAUNCHERS, default_jobs
 from harness.spec.metrics import budget_metrics
 from harness.spec.runs import Selection
 from harness.spec.study_schema import JOBS_SPEEDUP, PROFILES, plural
@@ -143,6 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
     from harness.cli.prune_study import add_parser as add_prune
 
     add_prune(sub, _selection_args, USER_REPORTS)
+    from harness.cli.decide import add_parser as add_decide
+
+    add_decide(sub)
     index = sub.add_parser("index", help="index.md: one row per claim of every study with runs")
     index.add_argument("--out", type=Path, default=USER_REPORTS, help=f"reports root (default: {USER_REPORTS})")
     index.add_argument("--profile", choices=PROFILES, default=None,
@@ -156,20 +160,6 @@ def _selection(args: argparse.Namespace, required: bool) -> Selection | None:
         return None
     return Selection(profile=args.profile or "quick", seeds=args.seeds, scenes=list(args.scenes),
                      variants=list(args.variants), overrides=list(args.overrides))
-
-
-def default_jobs(study: str, profile: str, launcher: str = "basic") -> int:
-    """Parallel runs when ``--jobs`` is not given: the profile's ``jobs`` (the quick profiles
-    say 2: runs spend part of their time single-threaded - evaluation, diagnostics, logging),
-    at most one per core; under ``--launcher local`` one per core, as many as fit in memory
-    (``run.launchers.local_slots``)."""
-    from harness.spec.study_files import load_study
-
-    if launcher == "local":
-        from harness.run.launchers import local_slots
-
-        return local_slots()
-    return max(1, min(load_study(study).profile(profile).jobs, os.cpu_count() or 1))
 
 
 def cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
@@ -326,7 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     # overrides may come after options too (argparse would have consumed the positional early)
     args, extra = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
-    if extra and (args.command in ("list", "index") or any(e.startswith("-") for e in extra)):
+    if extra and (args.command in ("list", "index", "decide") or any(e.startswith("-") for e in extra)):
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if extra:
         args.overrides = [*args.overrides, *extra]
@@ -359,6 +349,10 @@ def main(argv: list[str] | None = None) -> int:
             from harness.cli.prune_study import cmd_prune
 
             return cmd_prune(args, _selection(args, required=True), sys.argv[1:] if argv is None else argv)
+        if args.command == "decide":
+            from harness.cli.decide import cmd_decide
+
+            return cmd_decide(args, sys.argv[1:] if argv is None else argv)
         if args.command == "measure":
             from harness.cli.measure import measure_study
 

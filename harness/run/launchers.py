@@ -206,3 +206,14 @@ def _at_most(jobs: int, launch_one: Callable[..., Sequence[Any]], job_overrides:
         raise errors[0]
     return returns
 
+
+def default_jobs(study: str, profile: str, launcher: str = "basic") -> int:
+    """Parallel runs when ``--jobs`` is not given: the profile's ``jobs`` (the quick profiles
+    say 2: runs spend part of their time single-threaded - evaluation, diagnostics, logging),
+    at most one per core; under ``--launcher local`` one per core, as many as fit in memory
+    (``run.launchers.local_slots``)."""
+    from harness.spec.study_files import load_study
+
+    if launcher == "local":
+        return local_slots()
+    return max(1, min(load_study(study).profile(profile).jobs, os.cpu_count() or 1))

@@ -2,11 +2,13 @@
 
 A claim's **registration commit** is the most recent commit that changed what the claim tests:
 its registration fingerprint (``claim_fingerprint``) — its text, metric, test, expectation, arms
-(``a``, ``b``, ``contrasts``, ``pairs``, ``among``), scenes, pairing, ``versus``, group and
-``requires``; the definitions of its arms (their override lists in the study's ``variants:`` and
-in the quick profile's ``variants:``); and the definitions of its scenes in the quick profile
-(generator arguments, overrides, rungs and the ladders those set). A key left out counts as its
-default, so writing a default out changes nothing; a claim without ``scenes`` or ``among`` meant
+(``a``, ``b``, ``contrasts``, ``pairs``, ``among``), scenes, pairing, ``versus``, group,
+``requires`` and a mean claim's sequential plan (its ``plan:`` and every profile's
+``sequential:`` block, both left out while absent, so no fingerprint of a claim without one
+changed when they were added); the definitions of its arms (their override lists in the study's
+``variants:`` and in the quick profile's ``variants:``); and the definitions of its scenes in the
+quick profile (generator arguments, overrides, rungs and the ladders those set). A key left out
+counts as its default, so writing a default out changes nothing; a claim without ``scenes`` or ``among`` meant
 every scene or variant of the quick profile at that version, so a scene added there widened it.
 ``history:`` notes, ``withdrawn:`` and comments are not part of it.
 
@@ -61,6 +63,9 @@ SCENE_SETS_FILE = "_scene_sets.yaml"
 # as written in a file); scenes and among (None) default to the quick profile's (claim_fingerprint)
 CLAIM_KEYS = {"claim": "", "metric": "", "test": "", "expect": "", "a": "", "b": "", "scenes": None, "pair": "seed",
               "versus": "", "group": "paper", "contrasts": [], "pairs": [], "among": None, "requires": []}
+# keys added after claims were registered: in the fingerprint only when set, so that adding them
+# to the schema changed no fingerprint (a plan, ``{}`` or keys set to null count as absent)
+LATER_KEYS = ("plan",)
 SCENE_KEYS = ("synth", "overrides", "rungs")  # what a scene of the quick profile is made of
 MISSING = object()  # a file absent at a version
 
@@ -138,6 +143,11 @@ def _arms(claim: dict) -> list[str]:
     return list(dict.fromkeys(str(v) for v in named if v))
 
 
+def _set(value: Any) -> Any:
+    """A mapping without its keys set to null (they count as absent); any other value as it is."""
+    return {k: v for k, v in value.items() if v is not None} if isinstance(value, dict) else value
+
+
 def claim_fingerprint(study: Any, sets: Any, claim_id: str) -> str | None:
     """Canonical JSON of what registers ``claim_id`` in one version of a study file (raw YAML) and
     of the scene sets; None when the version has no such claim (module docstring)."""
@@ -153,6 +163,9 @@ def claim_fingerprint(study: Any, sets: Any, claim_id: str) -> str | None:
     if not body["among"] and body["test"] in ("decoupled", "dissociated"):  # every variant it ran
         body["among"] = list(quick_variants if quick_variants is not None else study_variants)
     body = {**body, "among": body["among"] or []}
+    for k in LATER_KEYS:
+        value = _set(claim.get(k))
+        body.update({k: value} if value else {})
     by_name = {s.get("name"): s for s in scenes}
     ladders = quick.get("ladders") if isinstance(quick.get("ladders"), dict) else {}
     scene_defs = {}
@@ -163,7 +176,11 @@ def claim_fingerprint(study: Any, sets: Any, claim_id: str) -> str | None:
                                  "ladders": {str(lad): ladders.get(lad) for lad in rungs}}
     arms = {v: {"study": study_variants.get(v), "quick": None if quick_variants is None else quick_variants.get(v)}
             for v in _arms(body)}
-    return json.dumps(_canonical({"claim": body, "arms": arms, "scenes": scene_defs}), sort_keys=True,
+    profiles = study.get("profiles") if isinstance(study.get("profiles"), dict) else {}
+    sequential = {str(n): _set(p.get("sequential")) for n, p in profiles.items()
+                  if body["test"] == "mean" and isinstance(p, dict) and _set(p.get("sequential"))}
+    return json.dumps(_canonical({"claim": body, "arms": arms, "scenes": scene_defs}
+                                 | ({"sequential": sequential} if sequential else {})), sort_keys=True,
                       ensure_ascii=False)
 
 

@@ -38,6 +38,7 @@ from harness.spec.study_schema import (
     Comparison,
     Expectation,
     Ladder,
+    PlanSpec,
     ProfileSpec,
     StudyScene,
     StudySpec,
@@ -205,6 +206,7 @@ def _profile(name: str, p: ProfileSpec, where: str, variants: dict[str, tuple[st
     require(len(set(names)) == len(names), f"{where}.scenes", "scene names must be unique")
     require(p.seeds >= 1, f"{where}.seeds", "must be a positive integer")
     require(p.jobs >= 1, f"{where}.jobs", "must be a positive integer")
+    _plan(p.sequential, f"{where}.sequential")
     prof_variants = _variants(p.variants, f"{where}.variants") if p.variants is not None else variants
     for s in scenes:
         for v in s.variants:
@@ -298,7 +300,18 @@ def _smoke_from_quick(quick: ProfileSpec, study: str) -> ProfileSpec:
         command=f"study run {study} --profile smoke",
         baseline=quick.baseline,
         machine="",  # no estimate (run_seconds 0)
+        sequential=quick.sequential,
     )
+
+
+def _plan(plan: PlanSpec | None, where: str) -> None:
+    """Check a sequential plan's numbers (a profile's ``sequential:`` or a claim's ``plan:``)."""
+    for k, least in (("first", 2), ("per_round", 1), ("rounds", 1), ("cap_runs", 2)):
+        value = getattr(plan, k, None)
+        require(value is None or value >= least, f"{where}.{k}", f"must be at least {least}")
+    for k in ("cap_cpu_hours", "study_cap_cpu_hours"):
+        value = getattr(plan, k, None)
+        require(value is None or value > 0, f"{where}.{k}", "must be positive")
 
 
 def _variance(v: VarianceSpec | None, where: str, variants: set[str]) -> VarianceSpec | None:
@@ -354,6 +367,8 @@ def _claims(claims: tuple[ClaimSpec, ...], where: str, variants: set[str], scene
                     f"a {c.test} claim needs variant 'b'")
         if c.test == Comparison.interaction:
             require(len(c.scenes) == 2, f"{at}.scenes", "an interaction needs exactly two scenes")
+        require(c.plan is None or c.test == Comparison.mean, f"{at}.plan", "only a mean claim runs until decided")
+        _plan(c.plan, f"{at}.plan")
         if c.expect == Expectation.equivalent:
             require(c.test in (Comparison.mean, Comparison.interaction, Comparison.variance), f"{at}.expect",
                     "an equivalence claim compares two variants' means, spreads or an interaction")

@@ -190,6 +190,29 @@ def fmt_duration(seconds: float) -> str:
 
 
 @dataclass(frozen=True)
+class PlanSpec:
+    """A mean claim's sequential plan (docs/sequential.md, ``analysis.sequential.Plan``): runs per
+    arm (pairs for a paired claim) at the first look, ``per_round`` more a round, at most
+    ``rounds`` looks, and caps for the claim (its runs, every arm counted, or CPU hours at the
+    profile's ``run_seconds``). A key left out is the profile's ``sequential:`` value, else the
+    library's default."""
+
+    first: int | None = None
+    per_round: int | None = None
+    rounds: int | None = None
+    cap_runs: int | None = None
+    cap_cpu_hours: float | None = None
+
+
+@dataclass(frozen=True)
+class SequentialSpec(PlanSpec):
+    """A profile's ``sequential:`` block: the plan of its counted mean claims (``study decide``)
+    and the CPU hours the whole study may use (``--until-decided`` stops before a round beyond it)."""
+
+    study_cap_cpu_hours: float | None = None
+
+
+@dataclass(frozen=True)
 class ProfileSpec:
     """How a study runs under one profile (quick, paper, smoke)."""
 
@@ -209,6 +232,7 @@ class ProfileSpec:
     run_seconds: float = 0.0
     machine: str = "an idle 2-core CPU machine (the study file's own figure)"
     ladders: dict[str, Ladder] = field(default_factory=dict)  # what the scenes' rungs set
+    sequential: SequentialSpec | None = None  # runs until decided (``study decide``); None: a fixed design
 
     def estimate(self, n_runs: int, jobs: int) -> str:
         """``~13 min (25 runs x ~40 s, 2 at a time) on <machine>``, or the profile's note."""
@@ -274,7 +298,8 @@ class ClaimSpec:
     commit that last changed the claim, its arms and scenes, against its first run's commit).
     ``withdrawn``: why it no longer counts — a registered claim is never deleted after its runs,
     its result stays in view. ``history``: what changed and why (notes, not part of the registration).
-    ``statement`` (file key ``claim``) is whitespace normalised.
+    ``plan``: a mean claim's sequential plan, over its profile's ``sequential:`` (``PlanSpec``;
+    part of the registration). ``statement`` (file key ``claim``) is whitespace normalised.
     """
 
     id: str
@@ -301,6 +326,7 @@ class ClaimSpec:
     needs: str = ""  # real data the claim needs; "not tested" rows say so
     withdrawn: str = ""  # why it no longer counts (its result stays in view)
     history: tuple[str, ...] = ()  # what changed since it was first registered, and why
+    plan: PlanSpec | None = None  # a mean claim's own sequential plan keys (over the profile's ``sequential:``)
     sesoi: float = derived(0.1)  # from the metric registry (the loader fills it in)
     sesoi_source: str = derived("")
 
