@@ -178,7 +178,12 @@ def _rotation(qw, qx, qy, qz):
     )  # fmt: skip
 
 
-@njit(inline="always", **JIT)
+# _dot3 and _sym_dot are left to LLVM's inliner, not Numba's (inline="always"): Numba inlines
+# by copying the callee's IR at every call site, and these two are called nine times from each
+# _mul3, itself inlined many times, which took the FreeTimeGS fused backward's compile from
+# about 20 s to 62 s (znver4, BENCHMARKS.md); LLVM inlines them anyway (the same bits, the same
+# speed: harness/tracking/same_bits.yaml, BENCHMARKS.md).
+@njit(**JIT)
 def _dot3(A, B, r, c, a_t, b_t):
     """Entry (r, c) of op(A) op(B) for row-major 3x3 9-tuples, op = transpose where a_t / b_t.
 
@@ -202,7 +207,7 @@ def _mul3(A, B, a_t, b_t):
     )  # fmt: skip
 
 
-@njit(inline="always", **JIT)
+@njit(**JIT)
 def _sym_dot(G, M, r, k):
     """Entry (r, k) of (G + G^T) M for row-major 3x3 9-tuples, each (G + G^T) entry added as
     G[r, c] + G[c, r], summed from +0 in c order."""
