@@ -9,11 +9,11 @@ STGS, the SSIM loss, the colour-aligned PSNR's fit, the relocation statistics).
 
     python -m ftgspp.bench.warmup        # prints the seconds it took
 
-On two or more cores the cold compile runs in two processes at once: FreeTimeGS's fused stage
-(its backward alone compiles for about a minute) in a child, every other kernel in this one;
-each writes its kernels to the shared on-disk cache. On a 2-core AMD EPYC (AVX-512, LLVM
-``znver4``, 2026-11-29) one process took 129 s cold, its parts 75 s (the fused stage) and 54 s
-(the rest): BENCHMARKS.md.
+On two or more cores the cold compile runs in two processes at once: the methods' fused stages
+(FreeTimeGS's and STGS's, which share the projection and SH blocks) in a child, every other
+kernel (the rasterizer, SSIM, colour alignment, relocation statistics) in this one; each writes
+its kernels to the shared on-disk cache. Figures (2-core AMD EPYC, AVX-512, LLVM ``znver4``):
+BENCHMARKS.md.
 """
 
 from __future__ import annotations
@@ -25,9 +25,8 @@ import sys
 import time
 
 # every kernel compiled cold, in two processes on an idle 2-core AMD EPYC with AVX-512 (LLVM
-# znver4): the fused stage's part, 75 s (BENCHMARKS.md, `python -m ftgspp.bench.warmup`; one
-# process took 129 s; 55-59 s before the fused stages existed)
-COLD_COMPILE_S = 75.0
+# znver4; BENCHMARKS.md, `python -m ftgspp.bench.warmup`)
+COLD_COMPILE_S = 44.0
 PARTS = ("fused", "rest")  # the two halves of the cold compile (``warm_up(part)``)
 
 
@@ -54,7 +53,7 @@ def kernels_cached() -> bool:
 
 
 def warm_up(part: str | None = None) -> float:
-    """Call every kernel once (``part``: only FreeTimeGS's fused stage, "fused", or every other
+    """Call every kernel once (``part``: only the methods' fused stages, "fused", or every other
     kernel, "rest"); returns the seconds it took (compile time when the cache was cold)."""
     if part not in (None, *PARTS):
         raise ValueError(f"unknown warm-up part {part!r} (one of {PARTS})")
@@ -76,29 +75,30 @@ def warm_up(part: str | None = None) -> float:
     t0 = time.perf_counter()
     scene = random_scene(4, 32, 24)
     camera = CameraTensors(scene["viewmat"], scene["K"], torch.zeros(3), 32, 24)
-    if part != "rest":
+    if part != "rest":  # the two methods' fused stages, which share the projection and SH blocks
         p = prepare(stage_model(scene, 0).params, 0.5, camera, 3, 1.0, True, 20.0)
         (p.means2d.sum() + p.colors.sum()).backward()
+        stg = SpacetimeGaussians.from_points(np.zeros((4, 3)), np.full((4, 3), 0.5), np.zeros(4), np.zeros((4, 3)),
+                                             np.ones(4), ModelConfig(name="stg", method="stg", sh_degree=0),
+                                             InitConfig())
+        q = stg_prepare(stg.params, 0.5, camera)
+        (q.means2d.sum() + q.colors.sum()).backward()
     if part == "fused":
         return time.perf_counter() - t0
     means2d = torch.tensor([[8.0, 8.0], [20.0, 9.0]], requires_grad=True)
     out = cpu.rasterize(means2d, torch.tensor([[0.1, 0.0, 0.1]] * 2), torch.rand(2, 3), torch.rand(2),
                         torch.ones(2), torch.tensor([[6, 6], [6, 6]]), 32, 24)  # radii [N, 2]
     sum(o.sum() for o in out).backward()
-    stg = SpacetimeGaussians.from_points(np.zeros((4, 3)), np.full((4, 3), 0.5), np.zeros(4), np.zeros((4, 3)),
-                                         np.ones(4), ModelConfig(name="stg", method="stg", sh_degree=0), InitConfig())
-    q = stg_prepare(stg.params, 0.5, camera)
-    (q.means2d.sum() + q.colors.sum()).backward()
     (1 - ssim_same(torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3))).backward()
     colour_aligned_np(np.random.default_rng(0).random((64, 3)), np.random.default_rng(1).random((64, 3)))
     relocate._add_visible(np.zeros(2, np.float32), np.zeros(2, np.float32), np.ones(2, np.float32),
-                          np.array([[2, 2], [0, 0]], np.int32))
+                          np.array([[2, 2], [0, 0]], np.int32))  # radii as the fused stages give them
     return time.perf_counter() - t0
 
 
 def warm_up_parallel(jobs: int | None = None) -> float:
     """``warm_up`` with its two parts in two processes at once when there are ``jobs`` >= 2
-    (default: 2 on a machine with 2 cores or more): the fused stage in a child, the rest here.
+    (default: 2 on a machine with 2 cores or more): the fused stages in a child, the rest here.
     Returns the seconds until both are done; a failed child raises with its last line."""
     jobs = jobs if jobs is not None else min(2, os.cpu_count() or 1)
     if jobs < 2:
@@ -111,7 +111,7 @@ def warm_up_parallel(jobs: int | None = None) -> float:
     finally:
         _, err = child.communicate()
     if child.returncode != 0:
-        raise RuntimeError(f"the fused stage's warm-up failed: {(err.strip().splitlines() or ['no output'])[-1]}")
+        raise RuntimeError(f"the fused stages' warm-up failed: {(err.strip().splitlines() or ['no output'])[-1]}")
     return time.perf_counter() - t0
 
 

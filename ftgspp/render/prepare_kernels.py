@@ -180,9 +180,9 @@ def _rotation(qw, qx, qy, qz):
 
 # _dot3 and _sym_dot are left to LLVM's inliner, not Numba's (inline="always"): Numba inlines
 # by copying the callee's IR at every call site, and these two are called nine times from each
-# _mul3, itself inlined many times, which took the FreeTimeGS fused backward's compile from
-# about 20 s to 62 s (znver4, BENCHMARKS.md); LLVM inlines them anyway (the same bits, the same
-# speed: harness/tracking/same_bits.yaml, BENCHMARKS.md).
+# _mul3, itself inlined many times: that took the compile of a method's fused backward that
+# uses these blocks from about 20 s to 62 s (znver4, BENCHMARKS.md). LLVM inlines them anyway:
+# the same bits and the same speed (harness/tracking/same_bits.yaml, BENCHMARKS.md).
 @njit(**JIT)
 def _dot3(A, B, r, c, a_t, b_t):
     """Entry (r, c) of op(A) op(B) for row-major 3x3 9-tuples, op = transpose where a_t / b_t.

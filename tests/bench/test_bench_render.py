@@ -74,8 +74,9 @@ def test_the_warm_up_halves_together_call_every_kernel_and_the_fused_half_only_i
 
     out = subprocess.run([sys.executable, "-c", PARTS_PROBE], capture_output=True, text=True, timeout=600, check=True)
     fused, both, total = out.stdout.strip().splitlines()
-    # in a fresh process, the fused half compiles FreeTimeGS's stage and nothing else
-    assert eval(fused) == ["freetime_fused.prepare_backward", "freetime_fused.prepare_forward"]
+    # in a fresh process, the fused half compiles the two methods' fused stages and nothing else
+    assert eval(fused) == ["freetime_fused.prepare_backward", "freetime_fused.prepare_forward",
+                           "stg_fused.prepare_backward", "stg_fused.prepare_forward"]
     assert len(eval(both)) == int(total)  # every kernel study run's warm-up promises
     with pytest.raises(ValueError, match="unknown warm-up part"):
         warm_up("half")
@@ -88,6 +89,6 @@ def test_the_parallel_warm_up_reports_a_failed_child(monkeypatch) -> None:
     real = subprocess.Popen
     monkeypatch.setattr(warmup.subprocess, "Popen",
                         lambda argv, **kw: real([argv[0], "-c", "import sys; sys.exit('no compiler here')"], **kw))
-    with pytest.raises(RuntimeError, match="fused stage's warm-up failed: no compiler here"):
+    with pytest.raises(RuntimeError, match="fused stages' warm-up failed: no compiler here"):
         warmup.warm_up_parallel(jobs=2)
     assert warmup.warm_up_parallel(jobs=1) == 0.0
