@@ -24,6 +24,7 @@ KEY_COLUMNS = ["variant", "scene", "seed", "config_hash"]
 RUN_COLUMNS = ("scene_label", "status", "failure", "error", "run_id", "trainer_fingerprint", "model_digest", "git_sha",
                "start_time", "command")
 EXTRA_PARAMS = ("budget", "iterations", "lr.scale")
+INSTANCE_COLUMNS = ("instance_of", "instance")  # the scene instance a run is on (spec.instances)
 # run tags that say which determinism domain a run's bits come from (ftgspp/runtime/determinism.py)
 DOMAIN_COLUMNS = {"domain": "determinism.id", "determinism": "determinism.mode",
                   "cpu_capability": "determinism.torch_cpu_capability", "cpu_model": "determinism.cpu_model",
@@ -42,7 +43,7 @@ def match_metrics(patterns: list[str] | tuple[str, ...], available: list[str]) -
 
 def metric_columns(df: pd.DataFrame) -> list[str]:
     """Columns that hold metrics (everything that is not a key, status or param column)."""
-    fixed = {*KEY_COLUMNS, *RUN_COLUMNS, *EXTRA_PARAMS, *DOMAIN_COLUMNS}
+    fixed = {*KEY_COLUMNS, *RUN_COLUMNS, *EXTRA_PARAMS, *DOMAIN_COLUMNS, *INSTANCE_COLUMNS}
     return [c for c in df.columns if c not in fixed]
 
 

@@ -8,7 +8,11 @@ corrects them over a named family and gives each row its verdict.
 
 - ``mean``: ``a`` − ``b``, paired by (scene, seed) (``pair: seed``: runs sharing them share
   the initialisation and data order) with a paired t-test, or Welch (``pair: none``); no
-  ``b``: a one-sample t-test of ``a`` against 0. Equivalence: TOST within ±SESOI.
+  ``b``: a one-sample t-test of ``a`` against 0. Equivalence: TOST within ±SESOI. When its runs
+  span 2 or more instances of one of its scenes (``spec.instances``; a claim's scene as written
+  stands for all of them), the instance is the unit: each arm's mean per (instance_of, instance)
+  over its seeds, then the same test on those means, paired by instance
+  (``instance_unit.claim_test``); ``unit: seed`` keeps the seed (a run-to-run claim).
 - ``variance``: the SD ratio std(a)/std(b), values centred per (variant, scene). Arms that
   share seeds (``pair: seed``) are paired: the Pitman–Morgan test (exact under normality, so
   its size is α at any n), equivalence by its two one-sided versions at [1/SESOI, SESOI], a
@@ -19,9 +23,8 @@ corrects them over a named family and gives each row its verdict.
   ``scenes[1]`` (Welch between the two sets).
 - ``contrast``: each weighted sum of variants per (scene, seed), one-sample t; all must hold
   (an intersection–union test: p = the largest p, effect = the weakest contrast).
-- ``decoupled`` (existential): on some scene, a pair of variants equivalent in ``metric``
-  within ±SESOI (TOST) whose ``versus`` differs (paired t); p per pair = the larger of the
-  two, Bonferroni over the pairs tried.
+- ``decoupled`` and ``dissociated`` (existential, ``analysis.existential``): on some scene, a
+  pair of variants equivalent (not worse) in ``metric`` whose ``versus`` differs (is worse).
 
 A claim pooled over several scenes first tests the scene × variant interaction (one-way ANOVA
 of the paired differences by scene); when it is significant and the scenes' effects have
@@ -38,10 +41,9 @@ lies outside ±SESOI, ``stats.minimal_effect_p``), reproduced by TOST.
 
 from __future__ import annotations
 
-import itertools
 import math
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,14 +78,14 @@ class Result:
     interval: Callable[[float], tuple[float, float]] | None = None
 
 
-def _ci(res: object, level: float) -> tuple[float, float]:
+def t_ci(res: object, level: float) -> tuple[float, float]:
     ci = res.confidence_interval(level)
     return float(ci.low), float(ci.high)
 
 
-def _interval(res: object) -> Callable[[float], tuple[float, float]]:
+def t_interval(res: object) -> Callable[[float], tuple[float, float]]:
     """``level -> (low, high)`` of a scipy t-test result (its ``confidence_interval``)."""
-    return lambda level: _ci(res, level)
+    return lambda level: t_ci(res, level)
 
 
 def _percentile(dist: np.ndarray) -> Callable[[float], tuple[float, float]]:
@@ -104,17 +106,17 @@ def compare_means(a: np.ndarray, b: np.ndarray | None, paired: bool, sesoi: floa
         method = "one-sample t against 0" if b is None else "paired t (by scene and seed)"
         n = f"{len(d)} runs" if b is None else f"{len(d)} pairs"
         sd = float(d.std(ddof=1))
-        return Result(method, n, float(d.mean()), _ci(res, CONFIDENCE), _ci(res, 0.90), "t", float(res.statistic),
+        return Result(method, n, float(d.mean()), t_ci(res, CONFIDENCE), t_ci(res, 0.90), "t", float(res.statistic),
                       float(res.pvalue), stats.tost_paired(d, sesoi), ("t_paired", sd),
-                      p_outside=stats.minimal_effect_p(d, sesoi), interval=_interval(res))
+                      p_outside=stats.minimal_effect_p(d, sesoi), interval=t_interval(res))
     b = np.asarray(b, dtype=float)
     res = sps.ttest_ind(a, b, equal_var=False)
     pooled = math.sqrt((a.var(ddof=1) + b.var(ddof=1)) / 2)
     above = sps.ttest_ind(a - sesoi, b, equal_var=False, alternative="greater").pvalue  # a − b > +sesoi
     below = sps.ttest_ind(a + sesoi, b, equal_var=False, alternative="less").pvalue  # a − b < −sesoi
-    return Result("Welch t", f"{len(a)} vs {len(b)}", float(a.mean() - b.mean()), _ci(res, CONFIDENCE),
-                  _ci(res, 0.90), "t", float(res.statistic), float(res.pvalue), stats.tost_ind(a, b, sesoi),
-                  ("t_ind", pooled), p_outside=float(min(1.0, 2 * min(above, below))), interval=_interval(res))
+    return Result("Welch t", f"{len(a)} vs {len(b)}", float(a.mean() - b.mean()), t_ci(res, CONFIDENCE),
+                  t_ci(res, 0.90), "t", float(res.statistic), float(res.pvalue), stats.tost_ind(a, b, sesoi),
+                  ("t_ind", pooled), p_outside=float(min(1.0, 2 * min(above, below))), interval=t_interval(res))
 
 
 def _sd_ratio(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -166,11 +168,12 @@ def compare_variances(a: np.ndarray, b: np.ndarray, sesoi: float, names: tuple[s
 
 
 def finished(df: pd.DataFrame, metric: str, scenes: tuple[str, ...] = ()) -> pd.DataFrame:
-    """FINISHED runs with ``metric``, on ``scenes`` (all when empty)."""
+    """FINISHED runs with ``metric``, on ``scenes`` (all when empty): a scene as the study file
+    writes it stands for every instance of it (``instance_of``, ``spec.instances``)."""
     if metric not in df.columns:
         return df.iloc[0:0].assign(**{metric: []})
     ok = df[(df.status == "FINISHED") & df[metric].notna()]
-    return ok[ok.scene.isin(scenes)] if scenes else ok
+    return ok[ok.scene.isin(scenes) | (ok.instance_of.isin(scenes) if "instance_of" in ok else False)] if scenes else ok
 
 
 def wide(df: pd.DataFrame, metric: str, variants: list[str], scenes: tuple[str, ...] = ()) -> pd.DataFrame:
@@ -192,7 +195,7 @@ def missing(df: pd.DataFrame, claim: ClaimSpec) -> str:
         if v not in set(df.variant):
             return f"variant `{v}` not in these runs"
     for s in claim.scenes:
-        if s not in set(df.scene):
+        if s not in {*df.scene, *df.get("instance_of", ())}:
             return f"needs real data: {claim.needs}" if claim.needs else f"scene `{s}` not in these runs"
     return ""
 
@@ -240,7 +243,7 @@ def paired_differences(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ..
     return pair_differences(df, claim.metric, claim.a, claim.b, scenes)
 
 
-def _contrast(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
+def contrast(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
     results = []
     for weights in claim.contrasts:
         w = wide(df, claim.metric, [v for v, _ in weights], scenes)
@@ -260,69 +263,7 @@ def _contrast(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Re
                       f"{r.detail} = {r.effect:+.3f}" for r in results), interval=worst.interval)
 
 
-def _seed_aligned(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...], pairs: Callable
-                  ) -> Iterator[tuple[str, str, str, pd.DataFrame, pd.DataFrame]]:
-    """``(scene, a, b, x, y)`` for every scene and pair ``pairs(variants, 2)`` (combinations or
-    permutations) of the study's variants (``claim.among`` only, when it names some) with at least
-    3 seeds that logged both metrics: ``x`` of ``claim.metric``
-    and ``y`` of ``claim.versus``, wide by variant, on the same seeds."""
-    variants = [v for v in dict.fromkeys(df.variant) if not claim.among or v in claim.among]
-    for scene in scenes or tuple(dict.fromkeys(df.scene)):
-        for va, vb in pairs(variants, 2):
-            x = wide(df, claim.metric, [va, vb], (scene,))
-            y = wide(df, claim.versus, [va, vb], (scene,)).reindex(x.index).dropna()
-            if len(y) >= 3:
-                yield scene, va, vb, x.loc[y.index], y
-
-
-def _decoupled(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
-    tried = []
-    for scene, va, vb, x, y in _seed_aligned(df, claim, scenes, itertools.combinations):
-        p_equal = stats.tost_paired((x[va] - x[vb]).to_numpy(float), claim.sesoi)
-        dy = (y[va] - y[vb]).to_numpy(float)
-        differs = sps.ttest_1samp(dy, 0.0)
-        tried.append((max(p_equal, float(differs.pvalue)), scene, va, vb, dy, differs, p_equal))
-    if not tried:
-        raise ValueError("no scene with 3 seeds of two variants that logged both metrics")
-    p, scene, va, vb, dy, res, p_equal = min(tried, key=lambda t: t[0])
-    return Result(f"existential: per scene and variant pair, TOST of {claim.metric} within ±{claim.sesoi:g} and"
-                  f" paired t of {claim.versus}; p = max of the two, Bonferroni over {len(tried)} pairs",
-                  f"{len(dy)} pairs", float(dy.mean()), _ci(res, CONFIDENCE), _ci(res, 0.90), "t",
-                  float(res.statistic), min(1.0, p * len(tried)), math.nan, ("", math.nan),
-                  f"best pair {va} vs {vb} on {scene}: {claim.metric} equivalent (TOST p = {p_equal:.2g}),"
-                  f" {claim.versus} differs by {dy.mean():+.3g} (p = {res.pvalue:.2g})", interval=_interval(res))
-
-
-def _dissociated(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
-    """On some scene, an ordered pair (x, y): x is not worse than y in ``metric`` by the SESOI
-    (one-sided t against −SESOI on the better side) yet worse in ``versus`` (one-sided paired t);
-    p per pair = the larger of the two, Bonferroni over every ordered pair tried."""
-    from harness.spec.metrics import lower_is_better
-
-    sign_m = -1.0 if lower_is_better(claim.metric) else 1.0  # turns "better" into "higher"
-    sign_v = -1.0 if lower_is_better(claim.versus) else 1.0
-    tried = []
-    for scene, vx, vy, x, y in _seed_aligned(df, claim, scenes, itertools.permutations):
-        dm = sign_m * (x[vx] - x[vy]).to_numpy(float)  # > 0: x renders better
-        dv = sign_v * (y[vx] - y[vy]).to_numpy(float)  # < 0: x moves worse
-        p_not_worse = float(sps.ttest_1samp(dm, -claim.sesoi, alternative="greater").pvalue)
-        worse = sps.ttest_1samp(dv, 0.0, alternative="less")
-        tried.append((max(p_not_worse, float(worse.pvalue)), scene, vx, vy, dm, dv, p_not_worse))
-    if not tried:
-        raise ValueError("no scene with 3 seeds of two variants that logged both metrics")
-    p, scene, vx, vy, dm, dv, p_not_worse = min(tried, key=lambda t: t[0])
-    raw = sign_v * dv  # in the metric's own direction
-    res = sps.ttest_1samp(raw, 0.0)
-    return Result(f"existential: per scene and ordered variant pair, {claim.metric} not worse by ±{claim.sesoi:g}"
-                  f" (one-sided t) and {claim.versus} worse (one-sided paired t); p = the larger, Bonferroni over"
-                  f" {len(tried)} pairs", f"{len(dv)} pairs", float(raw.mean()), _ci(res, CONFIDENCE),
-                  _ci(res, 0.90), "t", float(res.statistic), min(1.0, p * len(tried)), math.nan, ("", math.nan),
-                  f"best pair {vx} vs {vy} on {scene}: {claim.metric} {sign_m * dm.mean():+.3g} (not worse by"
-                  f" {claim.sesoi:g}: p = {p_not_worse:.2g}), {claim.versus} {raw.mean():+.3g} (worse)",
-                  interval=_interval(res))
-
-
-def _spread(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
+def spread(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
     """Variant ``a``'s run-to-run SD (centred per scene) with its chi-square 95% CI; no test."""
     ok = finished(df, claim.metric, scenes)
     ok = ok[ok.variant == claim.a]
@@ -338,61 +279,3 @@ def _spread(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Resu
     return Result("run-to-run SD (centred per scene), chi-square CI; described, not tested", f"{len(values)} runs",
                   sd, interval(CONFIDENCE), interval(0.90), "", math.nan, math.nan, detail=f"{dof} degrees of freedom",
                   interval=interval)
-
-
-def compare(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
-    """The claim's test on the FINISHED runs of ``df`` on ``scenes``; ValueError when too few runs."""
-    if claim.test == "contrast":
-        return _contrast(df, claim, scenes)
-    if claim.test == "decoupled":
-        return _decoupled(df, claim, scenes)
-    if claim.test == "dissociated":
-        return _dissociated(df, claim, scenes)
-    if claim.test == "spread":
-        return _spread(df, claim, scenes)
-    if claim.test == "interaction":
-        pairs = claim.pairs or ((claim.a, claim.b),) * len(claim.scenes)
-        d1, d2 = (pair_differences(df, claim.metric, a, b, (s,)).to_numpy(dtype=float)
-                  for s, (a, b) in zip(claim.scenes, pairs))
-        if min(len(d1), len(d2)) < 2:
-            raise ValueError(f"{len(d1)} and {len(d2)} seed pairs on the two scenes (need 2 each)")
-        res = compare_means(d1, d2, paired=False, sesoi=claim.sesoi)
-        res.method = "Welch t on per-seed differences (difference of differences)"
-        return res
-    if claim.test == "mean" and claim.b and claim.pair == "seed":
-        d = paired_differences(df, claim, scenes)
-        if len(d) < 2:
-            raise ValueError(f"{len(d)} (scene, seed) pairs where both variants finished (need 2)")
-        res = compare_means(d.to_numpy(dtype=float), None, True, claim.sesoi)
-        res.method, res.n = "paired t (by scene and seed)", f"{len(d)} pairs"
-        return res
-    ok = finished(df, claim.metric, scenes)
-    if claim.test == "variance":  # centred per cell: pooling scenes adds no between-scene spread
-        ok = ok.assign(**{claim.metric: ok[claim.metric] - ok.groupby(["variant", "scene"])[claim.metric].transform("mean")})
-    a = ok.loc[ok.variant == claim.a, claim.metric].to_numpy(dtype=float)
-    b = ok.loc[ok.variant == claim.b, claim.metric].to_numpy(dtype=float) if claim.b else None
-    if len(a) < 2 or (b is not None and len(b) < 2):
-        raise ValueError(f"{len(a)} vs {0 if b is None else len(b)} finished runs (need 2 each)")
-    if claim.test == "variance":
-        if claim.pair == "seed":  # arms that share seeds: the pairs' spreads compared as pairs
-            w = ok[ok.variant.isin([claim.a, claim.b])].pivot_table(
-                index=["scene", "seed"], columns="variant", values=claim.metric, aggfunc="first").dropna()
-            if len(w) < 3 or not {claim.a, claim.b} <= set(w.columns):
-                raise ValueError(f"{len(w)} (scene, seed) pairs where both arms finished (need 3)")
-            return compare_variances(w[claim.a].to_numpy(float), w[claim.b].to_numpy(float), claim.sesoi,
-                                     names=(claim.a, claim.b), paired=True)
-        return compare_variances(a, b, claim.sesoi, names=(claim.a, claim.b))
-    return compare_means(a, b, paired=False, sesoi=claim.sesoi)
-
-
-def scene_split(df: pd.DataFrame, claim: ClaimSpec) -> tuple[float, dict[str, float]]:
-    """(heterogeneity p, per-scene mean effect) of a paired claim pooled over several scenes."""
-    if claim.test not in ("mean", "contrast") or not claim.b or claim.pair != "seed" or len(claim.scenes) == 1:
-        return math.nan, {}
-    d = paired_differences(df, claim, claim.scenes)
-    if d.empty:
-        return math.nan, {}
-    scenes = d.index.get_level_values("scene")
-    order = [s for s in (claim.scenes or tuple(dict.fromkeys(scenes))) if s in set(scenes)]
-    by_scene = {s: d[scenes == s].to_numpy(dtype=float) for s in order}
-    return stats.heterogeneity(list(by_scene.values())), {s: float(v.mean()) for s, v in by_scene.items()}

@@ -17,6 +17,12 @@ kind of scene* therefore takes the instance as its unit:
 
 A run-to-run claim (one fixed scene, the paper's secret 5) keeps the seed as its unit. The runs
 frame has the columns ``variant``, ``scene``, ``instance``, ``seed`` and the metric.
+
+A study's claims (``claim_compare.compare``) use it through ``claim_test``: a mean claim whose runs
+span 2 or more instances of one of its scenes (``by_instance``; the study's runs frame names each
+run's scene as written, ``instance_of``, and its ``instance``: ``spec.instances``) is tested with
+the (instance_of, instance) as its unit, unless it says ``unit: seed``; with one instance per
+scene it keeps today's test over seeds. ``unit_text`` is what a verdict row says its unit is.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ import pandas as pd
 from scipy import stats as sps
 
 from harness.analysis import claim_tests
+from harness.spec.study_schema import ClaimSpec, Comparison, Pairing, Unit, plural
 
 UNIT = ["scene", "instance"]
 
@@ -107,3 +114,56 @@ def seed_unit_p(df: pd.DataFrame, metric: str, a: str, b: str) -> float:
     table = df.groupby(["variant", *UNIT, "seed"])[metric].first().unstack("variant")[[a, b]].dropna()
     return float(sps.ttest_1samp(table[a].to_numpy(float) - table[b].to_numpy(float), 0.0).pvalue)
 
+
+# --------------------------------------------------------------------------- a study's claims
+
+
+def claim_runs(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> pd.DataFrame:
+    """The FINISHED runs of the claim's arms on ``scenes`` that logged its metric, with
+    ``instance_of`` and ``instance`` (a frame without them: each scene is instance 0 of itself)."""
+    runs = claim_tests.finished(df, claim.metric, scenes)
+    if claim.arms():
+        runs = runs[runs.variant.isin(claim.arms())]
+    if "instance_of" not in runs:
+        runs = runs.assign(instance_of=runs.scene, instance=0)
+    return runs
+
+
+def instances_spanned(runs: pd.DataFrame) -> pd.Series:
+    """Distinct instances per scene as written (index ``instance_of``) among ``runs``."""
+    if runs.empty:
+        return pd.Series(dtype=int)
+    return runs.groupby("instance_of", sort=False)["instance"].nunique()
+
+
+def by_instance(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> bool:
+    """Is ``claim`` tested with the instance as its unit? A mean claim (``unit: instance``, the
+    default) whose runs span 2 or more instances of one of its scenes."""
+    if claim.test != Comparison.mean or claim.unit != Unit.instance:
+        return False
+    spanned = instances_spanned(claim_runs(df, claim, scenes))
+    return bool(len(spanned)) and int(spanned.max()) >= 2
+
+
+def claim_test(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> claim_tests.Result:
+    """The claim's own test (paired by instance for ``pair: seed``, Welch for ``pair: none``,
+    one-sample without ``b``) on per-(instance_of, instance) means over seeds (``instance_test``)."""
+    runs = claim_runs(df, claim, scenes)
+    return instance_test(runs.assign(scene=runs.instance_of), claim.metric, claim.a, claim.b or None, claim.sesoi,
+                         paired=claim.pair == Pairing.seed)
+
+
+def unit_text(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> str:
+    """What the claim's test counts as a unit on these runs: ``3 instances`` (per-instance means;
+    ``6 instances of 2 scenes``), else seeds: ``seeds of 1 instance``, ``seeds of 1 instance of each
+    of 2 scenes``, ``seeds of 4 instances`` (a run-to-run claim over several instances)."""
+    spanned = instances_spanned(claim_runs(df, claim, scenes))
+    k, n = int(spanned.sum()), len(spanned)
+    if not k:
+        return ""
+    of_scenes = f" of {n} scenes" if n > 1 else ""
+    if by_instance(df, claim, scenes):
+        return plural(k, "instance") + of_scenes
+    if (spanned == 1).all():
+        return "seeds of 1 instance" + (f" of each of {n} scenes" if n > 1 else "")
+    return f"seeds of {plural(k, 'instance')}{of_scenes}"

@@ -217,7 +217,7 @@ def _prefix(values: pd.Series, cells: list[tuple[str, int]]) -> np.ndarray:
 
 
 def observed(df: pd.DataFrame, c: SeqClaim) -> Q.Claim:
-    """The claim's runs so far, up to its cap, as ``claim_tests.compare`` tests it: the paired
+    """The claim's runs so far, up to its cap, as ``claim_compare.compare`` tests it: the paired
     differences a − b by (scene, seed) (``pair: seed``), each arm's runs (Welch, ``pair: none``)
     or arm a's runs (one sample); each in the order runs enter (``SeqClaim.cells``)."""
     spec, cells = c.spec, c.cells(c.plan.n_max)

@@ -5,8 +5,9 @@
 claim) with the raw p of the difference test, of the equivalence test and — for "≈" claims —
 of the minimal-effect test, the heterogeneity p, and the claim's place in the paper register
 (``spec.paper_register``: the claim that ``decides`` a statement, ``evidence`` shown inside a
-statement's row, or a ``replaced`` claim). ``decide(frame)`` corrects the rows that count over
-each named family (``ClaimSpec.group``) and gives every row one verdict:
+statement's row, or a ``replaced`` claim), and the unit its test counted (``unit``: ``3 instances``
+or ``seeds of 1 instance``, ``analysis.instance_unit``). ``decide(frame)`` corrects the rows that
+count over each named family (``ClaimSpec.group``) and gives every row one verdict:
 
 - **one family, one error rate**: every hypothesis a family can reject — difference and
   equivalence tests of every counted row — goes into one Holm procedure
@@ -49,7 +50,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from harness.analysis import claim_tests as C, stats
+from harness.analysis import claim_compare, claim_tests as C, instance_unit, stats
 from harness.spec.paper_register import Register, Statement
 from harness.spec.study_schema import ClaimSpec
 
@@ -60,12 +61,13 @@ DECIDED = (REPRODUCED, CONTRADICTED, EQUIVALENT, INCONCLUSIVE)  # verdicts of ro
 CORRECTION = "holm"
 DECIDES, AS_EVIDENCE, REPLACED = "decides", "evidence", "replaced"
 COLUMNS = ["id", "claim", "group", "statement", "metric", "test", "expect", "comparison", "scene", "scope", "method",
-           "n", "effect", "ci_low", "ci_high", "ci90_low", "ci90_high", "ci_adj_low", "ci_adj_high", "ci_adj_level",
-           "sesoi", "sesoi_source", "stat_name", "statistic", "p", "p_tost", "p_outside", "p_het", "p_adj",
-           "p_tost_adj", "family", "family_size", "verdict", "exploratory", "interval_note", "raw_verdict", "n_needed",
-           "power_test", "power_param", "note", "detail", "role", "statement_id", "registered_commit", "role_commit",
-           "first_run_commit", "registered_before_runs", "registration_note", "withdrawn", "history", "counted",
-           "paper_statement", "paper_source", "paper_numbers", "paper_evidence", "paper_effects", "paper_size"]
+           "n", "unit", "effect", "ci_low", "ci_high", "ci90_low", "ci90_high", "ci_adj_low", "ci_adj_high",
+           "ci_adj_level", "sesoi", "sesoi_source", "stat_name", "statistic", "p", "p_tost", "p_outside", "p_het",
+           "p_adj", "p_tost_adj", "family", "family_size", "verdict", "exploratory", "interval_note", "raw_verdict",
+           "n_needed", "power_test", "power_param", "note", "detail", "role", "statement_id", "registered_commit",
+           "role_commit", "first_run_commit", "registered_before_runs", "registration_note", "withdrawn", "history",
+           "counted", "paper_statement", "paper_source", "paper_numbers", "paper_evidence", "paper_effects",
+           "paper_size"]
 INTERVAL = "_interval"  # evaluate's per-row ``level -> (low, high)`` (claim_tests.Result.interval); decide drops it
 RAW_LEVEL = 1 - stats.ALPHA  # the interval of a row in no family: at the unadjusted α
 
@@ -164,7 +166,7 @@ def _row(claim: ClaimSpec, scene: str, scope: str, study: str, register: Registe
     statement, role = found if found else (None, "")
     return {"id": claim.id if not scene else f"{claim.id}[{scene}]", "claim": claim.id, "group": claim.group,
             "statement": claim.statement, "metric": claim.metric, "test": claim.test, "expect": claim.expect,
-            "comparison": comparison_text(claim), "scene": scene, "scope": scope, "method": "", "n": "",
+            "comparison": comparison_text(claim), "scene": scene, "scope": scope, "method": "", "n": "", "unit": "",
             "effect": math.nan, "ci_low": math.nan, "ci_high": math.nan, "ci90_low": math.nan, "ci90_high": math.nan,
             "ci_adj_low": math.nan, "ci_adj_high": math.nan, "ci_adj_level": math.nan, "sesoi": claim.sesoi,
             "sesoi_source": claim.sesoi_source, "stat_name": "", "statistic": math.nan,
@@ -184,17 +186,17 @@ def _tested(row: dict, df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ..
     if absent:
         return {**row, "verdict": NOT_EXERCISED, "note": absent}
     try:
-        res = C.compare(df, claim, scenes)
+        res = claim_compare.compare(df, claim, scenes)
     except ValueError as err:
         return {**row, "note": str(err)}
     equivalence_claim = claim.expect == "equivalent"
     row = {**row, "method": res.method + ("; contradicted by the minimal-effect test (|effect| > SESOI)"
                                           if equivalence_claim else ""),
-           "n": res.n, "effect": res.effect, "ci_low": res.ci[0], "ci_high": res.ci[1],
-           "ci90_low": res.ci90[0], "ci90_high": res.ci90[1], "stat_name": res.stat_name,
-           "statistic": res.statistic, "p": res.p_outside if equivalence_claim else res.p, "p_tost": res.p_tost,
-           "p_outside": res.p_outside, "detail": res.detail, "verdict": INCONCLUSIVE, "power_test": res.power[0],
-           "power_param": res.power[1], INTERVAL: res.interval}
+           "n": res.n, "unit": instance_unit.unit_text(df, claim, scenes), "effect": res.effect,
+           "ci_low": res.ci[0], "ci_high": res.ci[1], "ci90_low": res.ci90[0], "ci90_high": res.ci90[1],
+           "stat_name": res.stat_name, "statistic": res.statistic, "p": res.p_outside if equivalence_claim else res.p,
+           "p_tost": res.p_tost, "p_outside": res.p_outside, "detail": res.detail, "verdict": INCONCLUSIVE,
+           "power_test": res.power[0], "power_param": res.power[1], INTERVAL: res.interval}
     if claim.test == "spread":
         return {**row, "verdict": DESCRIBED, "p": math.nan, "p_tost": math.nan}
     if not np.isfinite(row["p"]):
@@ -212,7 +214,7 @@ def evaluate(df: pd.DataFrame, claims: tuple[ClaimSpec, ...] | list[ClaimSpec], 
             rows.append({**_row(c, "", "pooled" if len(c.scenes) != 1 else c.scenes[0], study, register),
                          "note": why})
             continue
-        p_het, per_scene = C.scene_split(df, c)
+        p_het, per_scene = claim_compare.scene_split(df, c)
         signs = {np.sign(v) for v in per_scene.values() if v != 0}
         if p_het < stats.ALPHA and len(signs) > 1:  # the scenes disagree: never pooled over opposite signs
             for scene in per_scene:

@@ -213,6 +213,10 @@ def cmd_status(args: argparse.Namespace) -> int:
     data = collect(args.name, _selection(args, required=False))
     df = data.df
     print(f"{args.name} ({data.sel.profile}): {len(df)} runs in {data.experiment} at {data.uri}")
+    # spec.instances: how many instances of each scene (as the study file writes it) the runs are on
+    spans = df.groupby("instance_of", sort=False).instance.nunique() if "instance_of" in df else pd.Series(dtype=int)
+    if (spans > 1).any():
+        print("  scene instances: " + ", ".join(f"{s} ({k})" for s, k in spans.items()))
     width = max(len("variant"), *(len(v) for v in df.variant))
     swidth = max(len("scene"), *(len(s) for s in df.scene))
     print(f"  {'variant':{width}s}  {'scene':{swidth}s}  done  failed  missing  detail")

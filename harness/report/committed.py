@@ -26,6 +26,7 @@ from ftgspp.errors import InputError
 from harness.analysis.aggregate import DOMAIN_COLUMNS, KEY_COLUMNS, RUN_COLUMNS
 from harness.analysis.reproduction import read_reference
 from harness.report.results import Recorded, ReportData
+from harness.spec.instances import instance_columns
 from harness.spec.metrics import add_differences
 from harness.spec.runs import command_line
 from harness.tracking.store import display_uri
@@ -82,7 +83,8 @@ def from_committed(data: ReportData, folder: Path, echo: Callable[[str], None] =
                                                  " configs changed since: other config hashes); nothing written")
     missing = data.df.assign(_order=range(len(data.df)))  # row i is planned run i (results.runs_frame)
     missing = missing[~missing._order.isin(set(runs._order))]
-    df = add_differences(pd.concat([runs, missing]) if len(missing) else runs)
+    # the scene instances from the study file (spec.instances): a runs.csv may predate the columns
+    df = add_differences(instance_columns(pd.concat([runs, missing]) if len(missing) else runs, data.study))
     df = df.sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
     recorded = read_recorded(folder)
     lacks = _lacking(recorded)

@@ -23,6 +23,7 @@ from harness.analysis import verdicts as V
 from harness.report import COMMITTED_REPORTS
 from harness.report.results import collect, store_has_runs, trainer_fingerprints
 from harness.spec import registration, study_files
+from harness.spec.instances import instance_columns
 from harness.spec.metrics import add_differences
 from harness.spec.paper_register import Register
 from harness.spec.runs import Selection
@@ -77,6 +78,7 @@ def report_claims(name: str, root: Path, register: Register, studies_dir: Path |
     page = (folder / "index.md").read_text() if (folder / "index.md").is_file() else ""
     code = m.group(1).strip() if (m := CODE_AT.search(page)) else ""
     study = load_study(name, studies_dir)
+    df = instance_columns(df, study)  # from the study's scenes: a runs.csv may predate the columns
     frame = with_registration(V.evaluate(add_differences(df), study.claims, name, register), df, study.claims,
                               name, studies_dir)
     return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),

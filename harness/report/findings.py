@@ -88,7 +88,7 @@ def _table(study: str, path: Path, kind: str, keys: list[str], out: dict[str, fl
 def _medians(study: str, path: Path, out: dict[str, float]) -> None:
     df = pd.read_csv(path)
     done = df[df.status == "FINISHED"]
-    skip = {"seed", "budget", "iterations", "lr.scale", "torch_threads"}
+    skip = {"seed", "budget", "iterations", "lr.scale", "torch_threads", "instance"}
     cols = [c for c in done.select_dtypes("number").columns if c not in skip and not c.startswith("system/")]
     with np.errstate(over="ignore"):  # lifetimes of ungated Gaussians reach float32's max: inf is no finding
         for (variant, scene), cell in done.groupby(["variant", "scene"]):

@@ -116,7 +116,8 @@ def start_text(start_ms: int) -> str:
 
 
 def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]) -> pd.DataFrame:
-    """One row per planned run with its status, failure, error, provenance (trainer fingerprint,
+    """One row per planned run with its scene instance (``instance_of``, ``instance``:
+    ``spec.instances``), status, failure, error, provenance (trainer fingerprint,
     model digest, the commit it was made from and when it started: ``git_sha``, ``start_time``,
     which ``spec.registration`` reads; determinism domain), metrics and key params."""
     rows = []
@@ -124,6 +125,7 @@ def runs_frame(chosen: dict[RunKey, RunRecord | None], planned: list[PlannedRun]
         rec = chosen.get(p.key)
         row: dict[str, object] = dict(zip(KEY_COLUMNS, p.key))
         row["scene_label"] = p.spec.scene.title
+        row["instance_of"], row["instance"] = p.instance_of, p.instance  # from the study file, not tags
         for name in EXTRA_PARAMS:
             row[name] = float(p.params[name]) if name in p.params else math.nan
         if rec is None:

@@ -44,6 +44,16 @@ class PlannedRun:
         return (self.spec.variant, self.spec.scene.name, self.spec.seed, self.config_hash)
 
     @property
+    def instance_of(self) -> str:
+        """The scene as the study file writes it, whose instance this run's scene is (``spec.instances``)."""
+        return self.spec.scene.base
+
+    @property
+    def instance(self) -> int:
+        """Which instance of ``instance_of`` (0: the scene as written). Not a tag: read from the study."""
+        return self.spec.scene.instance
+
+    @property
     def tags(self) -> dict[str, str]:
         s = self.spec
         return {

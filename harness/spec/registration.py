@@ -7,7 +7,10 @@ its registration fingerprint (``claim_fingerprint``) — its text, metric, test,
 ``sequential:`` block, both left out while absent, so no fingerprint of a claim without one
 changed when they were added); the definitions of its arms (their override lists in the study's
 ``variants:`` and in the quick profile's ``variants:``); and the definitions of its scenes in the
-quick profile (generator arguments, overrides, rungs and the ladders those set). A key left out
+quick profile (generator arguments, overrides, rungs and the ladders those set, and ``instances``
+when not 1). A claim's ``unit:`` is in it when it is not the default (``instance``) and one of the
+claim's scenes has several instances: only then does it change the test (``spec.instances``), so
+marking a run-to-run claim on one instance ``unit: seed`` does not re-register it. A key left out
 counts as its default, so writing a default out changes nothing; a claim without ``scenes`` or ``among`` meant
 every scene or variant of the quick profile at that version, so a scene added there widened it.
 ``history:`` notes, ``withdrawn:`` and comments are not part of it.
@@ -67,6 +70,7 @@ CLAIM_KEYS = {"claim": "", "metric": "", "test": "", "expect": "", "a": "", "b":
 # to the schema changed no fingerprint (a plan, ``{}`` or keys set to null count as absent)
 LATER_KEYS = ("plan",)
 SCENE_KEYS = ("synth", "overrides", "rungs")  # what a scene of the quick profile is made of
+UNIT_DEFAULT = "instance"  # ClaimSpec.unit when left out
 MISSING = object()  # a file absent at a version
 
 
@@ -172,8 +176,11 @@ def claim_fingerprint(study: Any, sets: Any, claim_id: str) -> str | None:
     for name in body["scenes"] or []:
         scene = by_name.get(name, {})
         rungs = scene.get("rungs") if isinstance(scene.get("rungs"), dict) else {}
+        several = {"instances": scene["instances"]} if scene.get("instances") not in (None, 1) else {}
         scene_defs[str(name)] = {**{k: scene.get(k) for k in SCENE_KEYS},
-                                 "ladders": {str(lad): ladders.get(lad) for lad in rungs}}
+                                 "ladders": {str(lad): ladders.get(lad) for lad in rungs}, **several}
+    if claim.get("unit") not in (None, UNIT_DEFAULT) and any("instances" in d for d in scene_defs.values()):
+        body["unit"] = claim["unit"]
     arms = {v: {"study": study_variants.get(v), "quick": None if quick_variants is None else quick_variants.get(v)}
             for v in _arms(body)}
     profiles = study.get("profiles") if isinstance(study.get("profiles"), dict) else {}
@@ -290,14 +297,16 @@ def earliest_commit(runs: pd.DataFrame) -> tuple[str, str]:
 
 
 def _claim_runs(claim: ClaimSpec, runs: pd.DataFrame) -> pd.DataFrame:
-    """The finished runs a claim is tested on: its arms on its scenes."""
+    """The finished runs a claim is tested on: its arms on its scenes (every instance of each)."""
     if runs.empty or "status" not in runs:
         return runs.iloc[0:0]
     ok = runs[runs.status == "FINISHED"]
     arms = claim.arms()
     if arms:
         ok = ok[ok.variant.isin(arms)]
-    return ok[ok.scene.isin(claim.scenes)] if claim.scenes else ok
+    if not claim.scenes:
+        return ok
+    return ok[ok.scene.isin(claim.scenes) | (ok.instance_of.isin(claim.scenes) if "instance_of" in ok else False)]
 
 
 def _short(commit: str) -> str:

@@ -61,6 +61,7 @@ def expand(study: StudySpec, sel: Selection) -> list[RunSpec]:
 
     A scene may name its own seed count and the subset of variants run on it (ladder rungs
     with fewer seeds, a tuning scene with its own sweep); ``--seeds`` sets every scene's.
+    ``--scenes`` names scenes as planned: ``studio`` is instance 0, ``studio@2`` instance 2.
     Only the first seed's runs draw the diagnostics' figures (the reports show that seed's);
     every run measures their numbers.
     """

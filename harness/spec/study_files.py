@@ -9,8 +9,8 @@ prints as one line before exiting 2:
    mandatory keys against the schema, built into its frozen dataclasses;
 3. ``_resolve``, the one pass over what types cannot say: names that must refer to variants,
    scenes, metrics and ladders, and what is derived (a rung's override or generator argument
-   from the profile's ``ladders:``, so a rung's value is written once; synthetic-scene
-   defaults and folders; each profile's variants and baseline; whitespace-normalised text).
+   from the profile's ``ladders:``, so a rung's value is written once; synthetic-scene defaults,
+   folders and instances (``spec.instances``); each profile's variants and baseline; whitespace-normalised text).
    The ``smoke`` profile is derived from ``quick`` when a study does not define one:
    ``profile=smoke`` (at full resolution), one seed and tiny synthetic scenes (64x48 pixels,
    6 frames, 5 cameras).
@@ -28,7 +28,7 @@ from typing import Any
 import yaml
 
 from ftgspp.errors import InputError
-from harness.spec import paper_register, structured
+from harness.spec import instances, paper_register, structured
 from harness.spec.metrics import claimable, sesoi
 from harness.spec.paper_register import Register
 from harness.spec.study_schema import (
@@ -174,7 +174,7 @@ def _resolve(f: StudySpec, path: Path) -> StudySpec:
             profiles[name] = p = dataclasses.replace(p, baseline=f.baseline)
         require(p.baseline in p.variants, f"{where}: baseline", f"'{p.baseline}' is not a variant of {p.name}")
     all_variants = {v for p in profiles.values() for v in p.variants}
-    all_scenes = {sc.name for p in profiles.values() for sc in p.scenes}
+    all_scenes = {sc.base for p in profiles.values() for sc in p.scenes}  # a claim names a scene as written
     return dataclasses.replace(
         f, question=" ".join(f.question.split()), notes=" ".join(f.notes.split()), path=path, profiles=profiles,
         variants=variants, claims=_claims(f.claims, f"{where}: claims", all_variants, all_scenes),
@@ -201,7 +201,7 @@ def _profile(name: str, p: ProfileSpec, where: str, variants: dict[str, tuple[st
         for lname, _ in s.rungs:
             require(lname in p.ladders or not p.ladders, f"{where}.scenes.{s.name}.rungs",
                     f"unknown ladder '{lname}' (profile ladders: {', '.join(p.ladders)})")
-    scenes = tuple(_scene(s, f"{where}.scenes[{i}]", name, p.ladders) for i, s in enumerate(p.scenes))
+    scenes = tuple(x for i, s in enumerate(p.scenes) for x in _scene(s, f"{where}.scenes[{i}]", name, p.ladders))
     names = [s.name for s in scenes]
     require(len(set(names)) == len(names), f"{where}.scenes", "scene names must be unique")
     require(p.seeds >= 1, f"{where}.seeds", "must be a positive integer")
@@ -215,7 +215,7 @@ def _profile(name: str, p: ProfileSpec, where: str, variants: dict[str, tuple[st
     return dataclasses.replace(p, name=name, scenes=scenes, variants=prof_variants)
 
 
-def _scene(s: StudyScene, where: str, profile: str, ladders: dict[str, Ladder]) -> StudyScene:
+def _scene(s: StudyScene, where: str, profile: str, ladders: dict[str, Ladder]) -> list[StudyScene]:
     _name(s.name, where, "scene")
     require(s.seeds is None or s.seeds >= 1, f"{where}.seeds", "must be a positive integer")
     rung_overrides, rung_synth = _rung_settings(s, ladders, where)
@@ -227,7 +227,7 @@ def _scene(s: StudyScene, where: str, profile: str, ladders: dict[str, Ladder]) 
         synth = {"preset": "studio", "seed": 0, "layout": "dynerf", **synth}
         suffix = "-smoke" if profile == "smoke" else ""
         synth_dir = (SYNTH_ROOT / f"{s.name}{suffix}").as_posix()
-    return dataclasses.replace(s, synth=synth, overrides=overrides, synth_dir=synth_dir)
+    return instances.expand(dataclasses.replace(s, synth=synth, overrides=overrides, synth_dir=synth_dir), where)
 
 
 def _rung_settings(s: StudyScene, ladders: dict[str, Ladder], where: str) -> tuple[tuple[str, ...], dict[str, Any]]:
@@ -289,7 +289,7 @@ def _smoke_from_quick(quick: ProfileSpec, study: str) -> ProfileSpec:
         synth.update(tiny)
         keep = tuple(o for o in s.overrides if not o.startswith("data.path="))
         scenes.append(StudyScene(s.name, synth, keep, s.label, (SYNTH_ROOT / f"{s.name}-smoke").as_posix(),
-                                 None, s.variants, s.rungs))
+                                 None, s.variants, s.rungs, s.instances, s.instance_of, s.instance))
     return ProfileSpec(
         name="smoke",
         seeds=1,  # the quick profile's own overrides (e.g. determinism=portable) carry over

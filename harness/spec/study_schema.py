@@ -107,6 +107,14 @@ class ClaimGroup(StrEnum):
     second_method = "second_method"
 
 
+class Unit(StrEnum):
+    """A mean claim's independent unit over several instances of a scene (``ClaimSpec.unit``)."""
+
+    noun = nonmember("unit")
+    instance = "instance"
+    seed = "seed"
+
+
 class Pairing(StrEnum):
     """How a mean claim pairs the runs of ``a`` and ``b``: by seed, or not at all (Welch)."""
 
@@ -158,10 +166,18 @@ class StudyScene:
     variants: tuple[str, ...] = ()  # the variants run on this scene (default: all)
     # stability ladders this cell is a rung of: ladder name -> rung value (file: {lr_scale: 3})
     rungs: tuple[tuple[str, float], ...] = key(default=(), written=dict[str, float], read=pairs)
+    instances: int = 1  # synthetic instances of this kind of scene, synth seed + i each (``spec.instances``)
+    instance_of: str = derived("")  # the scene as written (the claims' name); "" for a scene built in code
+    instance: int = derived(0)
 
     @property
     def title(self) -> str:
         return self.label or self.name
+
+    @property
+    def base(self) -> str:
+        """The name claims give this scene: the scene it is an instance of."""
+        return self.instance_of or self.name
 
     def data_overrides(self) -> list[str]:
         """Overrides that select this scene's data and conditions."""
@@ -299,7 +315,9 @@ class ClaimSpec:
     ``withdrawn``: why it no longer counts — a registered claim is never deleted after its runs,
     its result stays in view. ``history``: what changed and why (notes, not part of the registration).
     ``plan``: a mean claim's sequential plan, over its profile's ``sequential:`` (``PlanSpec``;
-    part of the registration). ``statement`` (file key ``claim``) is whitespace normalised.
+    part of the registration). ``unit``: over several instances of a scene, a mean claim tests
+    per-instance means (``instance``) or keeps the seed (``seed``: a run-to-run claim).
+    ``statement`` (file key ``claim``) is whitespace normalised.
     """
 
     id: str
@@ -327,6 +345,7 @@ class ClaimSpec:
     withdrawn: str = ""  # why it no longer counts (its result stays in view)
     history: tuple[str, ...] = ()  # what changed since it was first registered, and why
     plan: PlanSpec | None = None  # a mean claim's own sequential plan keys (over the profile's ``sequential:``)
+    unit: Unit = Unit.instance  # a mean claim's unit over several scene instances (``Unit``)
     sesoi: float = derived(0.1)  # from the metric registry (the loader fills it in)
     sesoi_source: str = derived("")
 

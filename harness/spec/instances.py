@@ -1,0 +1,77 @@
+"""Scene instances: several synthetic draws of one kind of scene (issue 57; docs/sequential.md).
+
+Seeds on one scene instance are technical replicates; a claim about a method on a kind of scene
+needs several instances of it. A profile's scene says how many (``instances: K``, default 1) and
+the loader (``spec.study_files``) expands it here into K scenes:
+
+- instance 0 is the scene exactly as written: its name, generator arguments and data folder, so
+  every run made before instances existed keeps its run key and config hash;
+- instance i ≥ 1 is ``<name>@<i>`` (``instance_name``), drawn with the same generator arguments
+  and ``synth.seed`` + i, in its own folder (``data/synth/<name>@<i>``). ``@`` cannot appear in a
+  scene name written in a file (``study_files.NAME_PATTERN``), so an instance never collides with
+  a written scene, and it is plain text in MLflow tags, Hydra override values and folder names;
+- each carries ``instance_of`` (the written name, which claims use) and ``instance`` (i); a
+  label, when the scene has one, says which instance (``colour shift, instance 2``).
+
+Only a synthetic scene has instances: real data is one recording. ``instance_columns`` gives a
+study's runs frame its ``instance_of`` and ``instance`` columns from the study's scene specs (not
+from run tags, so runs made before instances, and committed ``runs.csv`` files, get them too).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pandas as pd
+
+from ftgspp.errors import InputError
+from harness.spec.study_schema import StudyScene, StudySpec
+
+SEPARATOR = "@"
+COLUMNS = ("instance_of", "instance")
+
+
+def instance_name(base: str, i: int) -> str:
+    """``studio`` for instance 0, ``studio@2`` for instance 2."""
+    return base if i == 0 else f"{base}{SEPARATOR}{i}"
+
+
+def expand(scene: StudyScene, where: str) -> list[StudyScene]:
+    """A resolved scene (``synth`` with its defaults, ``synth_dir`` set) as its ``instances``
+    scenes; one ``InputError`` when a scene of real data asks for more than one."""
+    if scene.instances < 1:
+        raise InputError(f"{where}.instances", "must be a positive integer")
+    if scene.synth is None and scene.instances > 1:
+        raise InputError(f"{where}.instances", f"scene '{scene.name}' is real data (no synth:), which has one"
+                                               " instance: only a synthetic scene can have instances")
+    out = []
+    folder = Path(scene.synth_dir)
+    for i in range(scene.instances):
+        name = instance_name(scene.name, i)
+        synth = scene.synth if i == 0 or scene.synth is None else {**scene.synth, "seed": int(scene.synth["seed"]) + i}
+        synth_dir = scene.synth_dir if i == 0 else (folder.parent / (name + folder.name[len(scene.name):])).as_posix()
+        label = scene.label if i == 0 or not scene.label else f"{scene.label}, instance {i}"
+        out.append(dataclasses.replace(scene, name=name, synth=synth, synth_dir=synth_dir, label=label,
+                                       instance_of=scene.name, instance=i))
+    return out
+
+
+def scene_instances(study: StudySpec) -> dict[str, tuple[str, int]]:
+    """Every scene name of every profile of ``study`` -> (the scene it is an instance of, i)."""
+    return {s.name: (s.base, s.instance) for p in study.profiles.values() for s in p.scenes}
+
+
+def instance_columns(df: pd.DataFrame, study: StudySpec | None) -> pd.DataFrame:
+    """``df`` (a runs frame) with ``instance_of`` and ``instance`` from the study's scene specs,
+    right after ``scene_label`` (else at the end), as ``report.results.runs_frame`` places them; a
+    scene the study no longer defines (or every scene, without a study) is instance 0 of itself."""
+    if "scene" not in df:
+        return df
+    known = scene_instances(study) if study is not None else {}
+    pairs = [known.get(str(s), (str(s), 0)) for s in df.scene]
+    out = df.drop(columns=[c for c in COLUMNS if c in df])
+    at = list(out.columns).index("scene_label") + 1 if "scene_label" in out else len(out.columns)
+    for k, (col, dtype) in enumerate(zip(COLUMNS, (object, "int64"))):
+        out.insert(at + k, col, pd.Series([p[k] for p in pairs], index=out.index, dtype=dtype))
+    return out

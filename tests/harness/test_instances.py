@@ -1,0 +1,262 @@
+"""Scene instances as the unit of a method claim (issue 57; ``spec.instances``,
+``analysis.instance_unit``): a scene's ``instances: K`` expands into K scenes whose instance 0 is
+the scene as written (its name, folder, run keys and config hashes, so committed runs stay
+valid), a claim naming the scene spans every instance, the runs frame carries ``instance_of`` and
+``instance`` from the study file, a mean claim over several instances is tested on per-instance
+means (``unit: seed`` keeps the seeds), and over one instance today's test is unchanged."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from fakes import MINI_STUDY
+
+from ftgspp.errors import InputError
+from harness.analysis import claim_compare, claim_tests as C, instance_unit as IU, verdicts as V
+from harness.analysis.aggregate import KEY_COLUMNS, metric_columns
+from harness.report import instance_span
+from harness.report.results import runs_frame
+from harness.spec import registration
+from harness.spec.instances import instance_columns
+from harness.spec.paper_register import Register
+from harness.spec.plan import plan_runs
+from harness.spec.runs import Selection, expand
+from harness.spec.study_files import load_study, parse_study
+from harness.spec.study_schema import ClaimSpec, StudySpec
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def mini(instances: int = 3, **scene: object) -> dict:
+    """MINI_STUDY with ``easy`` (synth seed 4, 2 seeds, both variants) drawn ``instances`` times."""
+    raw = copy.deepcopy(MINI_STUDY)
+    raw["profiles"]["quick"]["scenes"] = [{"name": "easy", "synth": {"preset": "studio", "seed": 4}, "seeds": 2,
+                                           "variants": ["baseline", "cc"], "instances": instances, **scene}]
+    return raw
+
+
+def parsed(name: str, scene: int, k: int) -> StudySpec:
+    """The real study ``name`` with its quick scene number ``scene`` drawn ``k`` times."""
+    path = ROOT / "studies" / f"{name}.yaml"
+    raw = yaml.safe_load(path.read_text())
+    raw["profiles"]["quick"]["scenes"][scene]["instances"] = k
+    return parse_study(raw, path, yaml.safe_load((ROOT / "studies" / "_scene_sets.yaml").read_text()))
+
+
+# --------------------------------------------------------------------------- expansion
+
+
+def test_a_scene_with_instances_expands_into_named_draws_with_their_own_seed_and_folder() -> None:
+    study = parse_study(mini(3), Path("mini.yaml"))
+    quick = study.profiles["quick"]
+    assert [s.name for s in quick.scenes] == ["easy", "easy@1", "easy@2"]
+    assert [s.synth["seed"] for s in quick.scenes] == [4, 5, 6]
+    assert [s.synth_dir for s in quick.scenes] == ["data/synth/easy", "data/synth/easy@1", "data/synth/easy@2"]
+    assert [(s.instance_of, s.instance) for s in quick.scenes] == [("easy", 0), ("easy", 1), ("easy", 2)]
+    # the rest of the generator arguments, the scene's own seeds and variants: the same for every instance
+    assert all({**s.synth, "seed": 4} == quick.scenes[0].synth for s in quick.scenes)
+    assert all(s.seeds == 2 and s.variants == ("baseline", "cc") for s in quick.scenes)
+    smoke = study.profiles["smoke"]  # derived from quick: the same instances, tiny and in their own folders
+    assert [(s.name, s.synth["seed"], s.synth_dir) for s in smoke.scenes] == [
+        ("easy", 4, "data/synth/easy-smoke"), ("easy@1", 5, "data/synth/easy@1-smoke"),
+        ("easy@2", 6, "data/synth/easy@2-smoke")]
+    assert [s.instance_of for s in smoke.scenes] == ["easy"] * 3
+    # instance 0 is the scene exactly as written without `instances`
+    plain = parse_study(mini(1), Path("mini.yaml")).profiles["quick"].scenes
+    assert len(plain) == 1 and plain[0].synth == quick.scenes[0].synth and plain[0].synth_dir == "data/synth/easy"
+    # `study run` runs every instance; `--scenes` names them as planned (`easy` is instance 0)
+    assert {r.scene.name for r in expand(study, Selection())} == {"easy", "easy@1", "easy@2"}
+    assert {r.scene.name for r in expand(study, Selection(scenes=["easy@2"]))} == {"easy@2"}
+
+
+def test_a_real_data_scene_with_instances_is_one_error_line() -> None:
+    raw = copy.deepcopy(MINI_STUDY)
+    raw["profiles"]["paper"]["scenes"][0]["instances"] = 2
+    with pytest.raises(InputError) as err:
+        parse_study(raw, Path("mini.yaml"))
+    text = str(err.value)
+    assert "\n" not in text and "profiles.paper.scenes[0].instances" in text and "real data" in text
+    with pytest.raises(InputError, match="instances.*positive"):
+        parse_study(mini(0), Path("mini.yaml"))
+
+
+def test_claims_name_the_scene_as_written_not_an_instance() -> None:
+    raw = mini(3)
+    raw["claims"] = [dict(raw["claims"][0], scenes=["easy@1"])]
+    with pytest.raises(InputError, match="unknown scene 'easy@1'"):
+        parse_study(raw, Path("mini.yaml"))
+
+
+def test_instance_zero_keeps_the_config_hash_and_the_committed_runs_stay_valid() -> None:
+    # ablation's studio drawn 3 times: instance 0 plans exactly the runs the file as written plans
+    sel = Selection(profile="quick", seeds=1, scenes=["studio"])
+    before = {p.key for p in plan_runs(expand(load_study("ablation"), sel))}
+    after = plan_runs(expand(parsed("ablation", 0, 3), Selection(profile="quick", seeds=1,
+                                                                scenes=["studio", "studio@1", "studio@2"])))
+    assert {p.key for p in after if p.instance == 0} == before
+    others = [p for p in after if p.instance > 0]
+    assert {(p.instance_of, p.spec.scene.name) for p in others} == {("studio", "studio@1"), ("studio", "studio@2")}
+    assert {p.params["data.path"] for p in others} == {"data/synth/studio@1", "data/synth/studio@2"}
+    assert not {p.config_hash for p in others} & {key[-1] for key in before}
+    assert all(p.tags["scene"] == p.spec.scene.name and "instance" not in p.tags for p in after)  # no new tags
+    # and against the committed runs themselves (secret5_cc runs portable: its hashes are any machine's)
+    committed = pd.read_csv(ROOT / "reports" / "secret5_cc" / "runs.csv", dtype={"config_hash": str})
+    have = set(committed[KEY_COLUMNS].astype(str).itertuples(index=False, name=None))
+    planned = plan_runs(expand(parsed("secret5_cc", 0, 2), Selection(profile="quick", seeds=1,
+                                                                     scenes=["studio", "studio@1"])))
+    zero = [tuple(map(str, p.key)) for p in planned if p.instance == 0]
+    assert len(zero) == 2 and set(zero) <= have
+    assert not {tuple(map(str, p.key)) for p in planned if p.instance} & have
+
+
+# --------------------------------------------------------------------------- the runs frame
+
+
+def test_the_runs_frame_carries_instance_columns_from_the_study_file() -> None:
+    study = parse_study(mini(2), Path("mini.yaml"))
+    planned = plan_runs(expand(study, Selection(profile="quick")))
+    df = runs_frame({}, planned)
+    assert list(df.columns[list(df.columns).index("scene_label") + 1:][:2]) == ["instance_of", "instance"]
+    assert sorted(set(zip(df.scene, df.instance_of, df.instance))) == [("easy", "easy", 0), ("easy@1", "easy", 1)]
+    assert not {"instance_of", "instance"} & set(metric_columns(df))  # neither is a metric
+    # a runs.csv written before the columns (or a scene left out of the file since) gets them from the study
+    old = df.drop(columns=["instance_of", "instance"]).iloc[:4].assign(scene=["easy", "easy@1", "gone", "easy"])
+    back = instance_columns(old, study)
+    assert list(back.columns) == list(df.columns)
+    assert list(zip(back.instance_of, back.instance)) == [("easy", 0), ("easy", 1), ("gone", 0), ("easy", 0)]
+    assert back.instance.dtype == np.int64
+
+
+# --------------------------------------------------------------------------- instance-level tests
+
+
+def frame(instances: int, seeds: int = 3, scenes: tuple[str, ...] = ("studio",), seed: int = 0) -> pd.DataFrame:
+    """Runs of ``baseline`` and ``cc`` on each scene's instances: cc's effect varies by instance."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for s in scenes:
+        for i in range(instances):
+            level, effect = rng.normal(30, 1), rng.normal(0.3, 0.4)
+            for r in range(seeds):
+                noise = rng.normal(0, 0.05)
+                for v, shift in (("baseline", 0.0), ("cc", effect)):
+                    rows.append({"variant": v, "scene": s if i == 0 else f"{s}@{i}", "instance_of": s,
+                                 "instance": i, "seed": r, "status": "FINISHED",
+                                 "psnr": level + shift + noise + rng.normal(0, 0.05)})
+    return pd.DataFrame(rows)
+
+
+def claim(**kw: object) -> ClaimSpec:
+    base = {"id": "c", "statement": "s", "metric": "psnr", "test": "mean", "expect": "higher", "a": "cc",
+            "b": "baseline", "scenes": ("studio",), "sesoi": 0.1}
+    return ClaimSpec(**{**base, **kw})
+
+
+@pytest.mark.parametrize(("pair", "b", "paired", "method"), [
+    ("seed", "baseline", True, "paired t over instance means"),
+    ("none", "baseline", False, "Welch t over instance means"),
+    ("seed", "", True, "one-sample t over instance means")])
+def test_a_mean_claim_over_instances_is_the_instance_means_test(pair: str, b: str, paired: bool, method: str) -> None:
+    df = frame(5)
+    c = claim(pair=pair, b=b)
+    res = claim_compare.compare(df, c, c.scenes)
+    oracle = IU.instance_test(df.assign(scene=df.instance_of), "psnr", "cc", b or None, 0.1, paired=paired)
+    assert res.method == method and res.n == oracle.n
+    assert (res.effect, res.p, res.p_tost, res.ci) == (oracle.effect, oracle.p, oracle.p_tost, oracle.ci)
+    # the oracle itself is the claim's test on the per-instance means, computed here independently
+    means = df.groupby(["variant", "instance"]).psnr.mean().unstack("variant")
+    expected = C.compare_means(means.cc.to_numpy(), None if not b else means[b].to_numpy(), paired, 0.1)
+    assert res.p == pytest.approx(expected.p, rel=1e-12) and res.effect == pytest.approx(expected.effect)
+    row = V.evaluate(df, [c]).iloc[0]
+    assert row.unit == "5 instances" and row.n.endswith("instances")
+
+
+def test_one_instance_keeps_todays_test_bit_for_bit_and_unit_seed_keeps_the_seeds() -> None:
+    one = frame(1, seeds=6)
+    c = claim()
+    with_cols = claim_compare.compare(one, c, c.scenes)
+    without = claim_compare.compare(one.drop(columns=["instance_of", "instance"]), c, c.scenes)
+    assert (with_cols.method, with_cols.n) == ("paired t (by scene and seed)", "6 pairs")
+    assert (with_cols.effect, with_cols.p, with_cols.p_tost, with_cols.ci, with_cols.statistic) == (
+        without.effect, without.p, without.p_tost, without.ci, without.statistic)
+    assert V.evaluate(one, [c]).iloc[0].unit == "seeds of 1 instance"
+    # a run-to-run claim over several instances: every (instance, seed) pair stays a unit
+    many, seed_unit = frame(4), claim(unit="seed")
+    res = claim_compare.compare(many, seed_unit, seed_unit.scenes)
+    assert (res.method, res.n) == ("paired t (by scene and seed)", "12 pairs")
+    assert V.evaluate(many, [seed_unit]).iloc[0].unit == "seeds of 4 instances"
+    # other tests pool the instances' seeds as before (a variance claim: centred per instance)
+    spread = claim(test="variance", expect="lower")
+    assert claim_compare.compare(many, spread, spread.scenes).n == "12 pairs"
+
+
+def test_a_claim_over_two_scenes_splits_by_the_scene_as_written_over_instance_means() -> None:
+    df = frame(3, scenes=("studio", "drift"), seed=3)
+    c = claim(scenes=("studio", "drift"))
+    p_het, per_scene = claim_compare.scene_split(df, c)
+    assert list(per_scene) == ["studio", "drift"]
+    means = df.groupby(["variant", "instance_of", "instance"]).psnr.mean().unstack("variant")
+    d = means.cc - means.baseline
+    assert per_scene["studio"] == pytest.approx(d.loc["studio"].mean())
+    assert np.isfinite(p_het)
+    assert claim_compare.compare(df, c, c.scenes).n == "6 instances"
+    assert IU.unit_text(df, c, c.scenes) == "6 instances of 2 scenes"
+    seed_unit = claim(scenes=("studio", "drift"), unit="seed")
+    assert IU.unit_text(df, seed_unit, c.scenes) == "seeds of 6 instances of 2 scenes"
+    assert IU.unit_text(frame(1, scenes=("studio", "drift")), c, c.scenes) == "seeds of 1 instance of each of 2 scenes"
+
+
+# --------------------------------------------------------------------------- registration
+
+
+def test_the_unit_and_instances_register_a_claim_only_when_they_change_its_test() -> None:
+    raw = copy.deepcopy(MINI_STUDY)
+    first = registration.claim_fingerprint(raw, {}, "cc_mean")
+    raw["claims"][0]["unit"] = "instance"  # the default written out
+    assert registration.claim_fingerprint(raw, {}, "cc_mean") == first
+    raw["claims"][0]["unit"] = "seed"  # on one instance the seed is the unit either way
+    assert registration.claim_fingerprint(raw, {}, "cc_mean") == first
+    raw["profiles"]["quick"]["scenes"][0]["instances"] = 1
+    assert registration.claim_fingerprint(raw, {}, "cc_mean") == first
+    raw["profiles"]["quick"]["scenes"][0]["instances"] = 3  # the claim now spans three instances
+    with_seed = registration.claim_fingerprint(raw, {}, "cc_mean")
+    assert with_seed != first and json.loads(with_seed)["claim"]["unit"] == "seed"
+    del raw["claims"][0]["unit"]
+    by_instance = registration.claim_fingerprint(raw, {}, "cc_mean")
+    assert by_instance not in (first, with_seed) and json.loads(by_instance)["scenes"]["easy"]["instances"] == 3.0
+
+
+# --------------------------------------------------------------------------- committed reports
+
+
+def test_the_span_of_each_counted_method_claim_is_listed_from_its_runs() -> None:
+    claims = (claim(id="wide"), claim(id="two", scenes=("studio", "drift")), claim(id="seedy", unit="seed"),
+              claim(id="spread", test="variance", expect="lower"), claim(id="old", withdrawn="superseded"),
+              claim(id="conv", group="convention"), claim(id="ext", group="extension", b=""))
+    df = pd.concat([frame(3), frame(1, scenes=("drift",))], ignore_index=True)
+    rows = pd.DataFrame(instance_span.claim_spans("study", claims, df, Register()))
+    assert list(rows.claim) == ["wide", "two", "ext"]
+    assert list(rows.instances) == [3, 1, 3]
+    assert rows.set_index("claim").per_scene["two"] == "studio: 3, drift: 1"
+    assert rows.set_index("claim").runs["wide"] == 18  # 2 arms x 3 instances x 3 seeds
+    # a run-to-run study's claims are not method claims about a kind of scene; no runs span nothing
+    assert instance_span.claim_spans("secret5_cc", claims, df, Register()) == []
+    bare = instance_span.claim_spans("study", claims[:1], None, Register())
+    assert bare[0]["instances"] == 0 and bare[0]["runs"] == 0
+    # an old runs.csv without the columns: every scene is one instance
+    old = instance_span.claim_spans("study", claims[:1], frame(1).drop(columns=["instance_of", "instance"]),
+                                    Register())
+    assert old[0]["instances"] == 1
+
+
+def test_the_committed_reports_list_every_counted_method_claim() -> None:
+    spans = instance_span.committed_spans(ROOT / "reports", ROOT / "studies")
+    assert len(spans) and list(spans.columns) == instance_span.COLUMNS
+    assert not spans.study.isin(instance_span.RUN_TO_RUN_STUDIES).any()
+    assert (spans[spans.runs > 0].instances >= 1).all()
