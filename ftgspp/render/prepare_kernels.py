@@ -181,8 +181,9 @@ def _rotation(qw, qx, qy, qz):
 # _dot3 and _sym_dot are left to LLVM's inliner, not Numba's (inline="always"): Numba inlines
 # by copying the callee's IR at every call site, and these two are called nine times from each
 # _mul3, itself inlined many times: that took the compile of a method's fused backward that
-# uses these blocks from about 20 s to 62 s (znver4, BENCHMARKS.md). LLVM inlines them anyway:
-# the same bits and the same speed (harness/tracking/same_bits.yaml, BENCHMARKS.md).
+# uses these blocks from about 20 s to 56-62 s (znver4). Left to LLVM: the same bits
+# (harness/tracking/same_bits.yaml), the forward as fast, the backward stage 1.09x as long
+# (benchmarks/prepare_ab.py; under 1 % of an iteration; BENCHMARKS.md).
 @njit(**JIT)
 def _dot3(A, B, r, c, a_t, b_t):
     """Entry (r, c) of op(A) op(B) for row-major 3x3 9-tuples, op = transpose where a_t / b_t.
