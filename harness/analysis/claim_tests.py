@@ -51,6 +51,7 @@ import pandas as pd
 from scipy import stats as sps
 
 from harness.analysis import stats
+from harness.spec.instances import on_scenes
 from harness.spec.study_schema import ClaimSpec
 
 CONFIDENCE = 0.95
@@ -173,7 +174,7 @@ def finished(df: pd.DataFrame, metric: str, scenes: tuple[str, ...] = ()) -> pd.
     if metric not in df.columns:
         return df.iloc[0:0].assign(**{metric: []})
     ok = df[(df.status == "FINISHED") & df[metric].notna()]
-    return ok[ok.scene.isin(scenes) | (ok.instance_of.isin(scenes) if "instance_of" in ok else False)] if scenes else ok
+    return ok[on_scenes(ok, scenes)] if scenes else ok
 
 
 def wide(df: pd.DataFrame, metric: str, variants: list[str], scenes: tuple[str, ...] = ()) -> pd.DataFrame:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,8 +127,7 @@ def plan_of(claim: ClaimSpec, profile: ProfileSpec) -> Q.Plan:
 
 def _why_not(study: StudySpec, profile: ProfileSpec, claim: ClaimSpec, register: Register) -> str:
     """Why a counted mean claim is not run until decided under ``profile`` ("" when it is)."""
-    found = register.role(study.name, claim.id)
-    if claim.withdrawn or (found and found[1] in (V.AS_EVIDENCE, V.REPLACED)):
+    if not counts_in_group(study.name, claim, register):
         return "not counted (withdrawn, evidence or replaced)"
     scenes = {s.name: s for s in profile.scenes}
     if any(v not in profile.variants for v in claim.arms()) or any(s not in scenes for s in claim.scenes):
@@ -163,9 +163,12 @@ def group_shares(study: StudySpec, families: dict[str, list[SeqClaim]], register
     return out
 
 
-def design(study: StudySpec, profile: str, register: Register, others: dict[str, StudySpec] | None = None) -> Design:
+def design(study: StudySpec, profile: str, register: Register,
+           others: Callable[[], dict[str, StudySpec]] | None = None) -> Design:
     """The study's sequential design under ``profile``; ``InputError`` when it has none (no
-    ``sequential:`` block, no mean claim this profile runs) or a plan is impossible."""
+    ``sequential:`` block, no mean claim this profile runs) or a plan is impossible. ``others``
+    gives the other study files (for each family's share of its group's α, ``group_shares``);
+    it is called after this study's own checks."""
     prof = study.profile(profile)
     where = f"study decide {study.name} --profile {prof.name}"
     means = [c for c in study.claims if c.test == Comparison.mean]
@@ -190,7 +193,9 @@ def design(study: StudySpec, profile: str, register: Register, others: dict[str,
             raise InputError(f"{where}: claim {c.id}", f"impossible plan ({err})") from None
     if not families:
         raise InputError(where, f"none of its mean claims is counted and run by the {prof.name} profile")
-    shares = group_shares(study, families, register, {k: v for k, v in (others or {}).items() if k != study.name})
+    # the other study files are read only now, so that this study's own errors come first
+    rest = {k: v for k, v in (others() if others else {}).items() if k != study.name}
+    shares = group_shares(study, families, register, rest)
     return Design(study, prof, families, tuple((i, w) for i, w in left_out if w), shares)
 
 

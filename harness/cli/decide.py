@@ -53,9 +53,9 @@ def cmd_decide(args: argparse.Namespace, argv: list[str], echo: Echo = print) ->
 
     if not args.until_decided and (args.jobs is not None or args.lease is not None):
         raise InputError("study decide", "--jobs and --lease go with --until-decided")
-    study, register = load_study(args.name), load_register()
-    S.design(study, args.profile, register)  # the study's own errors before any other file's
-    d = S.design(study, args.profile, register, {n: load_study(n) for n in list_studies() if n != study.name})
+    study = load_study(args.name)
+    d = S.design(study, args.profile, load_register(),
+                 lambda: {n: load_study(n) for n in list_studies() if n != study.name})
     for line in plan_lines(d, args.spending):
         echo(line)
     if not args.until_decided:

@@ -57,6 +57,13 @@ def expand(scene: StudyScene, where: str) -> list[StudyScene]:
     return out
 
 
+def on_scenes(df: pd.DataFrame, scenes: tuple[str, ...] | list[str]) -> pd.Series:
+    """Which rows of a runs frame are on ``scenes`` as a study file writes them: the scene itself
+    or any instance of it (``instance_of``, when the frame has it)."""
+    mask = df.scene.isin(scenes)
+    return mask | df.instance_of.isin(scenes) if "instance_of" in df else mask
+
+
 def scene_instances(study: StudySpec) -> dict[str, tuple[str, int]]:
     """Every scene name of every profile of ``study`` -> (the scene it is an instance of, i)."""
     return {s.name: (s.base, s.instance) for p in study.profiles.values() for s in p.scenes}

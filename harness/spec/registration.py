@@ -56,6 +56,7 @@ import yaml
 
 from harness.spec import git_repo
 from harness.spec.git_repo import repository
+from harness.spec.instances import on_scenes
 from harness.spec.study_schema import ClaimSpec
 
 YES, NO, UNKNOWN = "yes", "no", "unknown"
@@ -306,7 +307,7 @@ def _claim_runs(claim: ClaimSpec, runs: pd.DataFrame) -> pd.DataFrame:
         ok = ok[ok.variant.isin(arms)]
     if not claim.scenes:
         return ok
-    return ok[ok.scene.isin(claim.scenes) | (ok.instance_of.isin(claim.scenes) if "instance_of" in ok else False)]
+    return ok[on_scenes(ok, claim.scenes)]
 
 
 def _short(commit: str) -> str:

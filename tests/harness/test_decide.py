@@ -133,7 +133,7 @@ def test_the_sequential_claims_hold_their_share_of_the_groups_alpha_over_every_s
     assert d.shares == {"paper": (3, pytest.approx(stats.ALPHA * 2 / 3)), "extension": (1, stats.ALPHA)}
     other = copy.deepcopy(SEQ_STUDY) | {"name": "other"}
     other["claims"] = [dict(c, id=f"o_{c['id']}") for c in other["claims"]]  # 3 more paper claims, 1 extension
-    with_other = S.design(_study(), "quick", Register(), {"other": _study(other, "other")})
+    with_other = S.design(_study(), "quick", Register(), lambda: {"other": _study(other, "other")})
     assert with_other.shares == {"paper": (6, pytest.approx(stats.ALPHA / 3)), "extension": (2, stats.ALPHA / 2)}
     df = _frame({"base": 9, "cc": 9, "gate": 9, "free": 9})
     shared = [o.decision.share for f in S.decide(with_other, df) for o in f.outcomes]
