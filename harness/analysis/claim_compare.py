@@ -13,13 +13,24 @@ import pandas as pd
 
 from harness.analysis import claim_tests as C, existential, instance_unit, stats
 from harness.analysis.claim_tests import Result
+from harness.spec.instances import takes_instances, tested
 from harness.spec.study_schema import ClaimSpec
 
 
 def compare(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Result:
     """The claim's test on the FINISHED runs of ``df`` on ``scenes``; ValueError when too few runs.
-    A mean claim whose runs span several instances of a scene takes the instance as its unit
-    (``instance_unit.claim_test``) unless it says ``unit: seed``."""
+    A mean, contrast or interaction claim whose runs include fresh instances of a scene takes the
+    instance as its unit, the pilot instance 0 left out (``instance_unit``); any other claim
+    reads the scenes as written (instance 0) only (``spec.instances.tested``)."""
+    df = df if takes_instances(claim) else tested(df, claim)  # the seed its unit: the scenes as written
+    if instance_unit.by_instance(df, claim, scenes):
+        if claim.test == "mean":
+            return instance_unit.claim_test(df, claim, scenes)
+        res = compare(instance_unit.units(df, claim, scenes), claim, scenes)  # no instance columns: by seed
+        res.method = res.method.replace("per-seed", "per-instance") + ", over instance means"
+        res.n = res.n.replace("runs", "instances").replace("pairs", "instances")
+        res.n += "" if "instances" in res.n else " instances"
+        return res
     if claim.test == "contrast":
         return C.contrast(df, claim, scenes)
     if claim.test == "decoupled":
@@ -33,12 +44,10 @@ def compare(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Resu
         d1, d2 = (C.pair_differences(df, claim.metric, a, b, (s,)).to_numpy(dtype=float)
                   for s, (a, b) in zip(claim.scenes, pairs))
         if min(len(d1), len(d2)) < 2:
-            raise ValueError(f"{len(d1)} and {len(d2)} seed pairs on the two scenes (need 2 each)")
+            raise ValueError(f"{len(d1)} and {len(d2)} pairs on the two scenes (need 2 each)")
         res = C.compare_means(d1, d2, paired=False, sesoi=claim.sesoi)
         res.method = "Welch t on per-seed differences (difference of differences)"
         return res
-    if instance_unit.by_instance(df, claim, scenes):
-        return instance_unit.claim_test(df, claim, scenes)
     if claim.test == "mean" and claim.b and claim.pair == "seed":
         d = C.paired_differences(df, claim, scenes)
         if len(d) < 2:
@@ -69,14 +78,14 @@ def compare(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Resu
 def scene_split(df: pd.DataFrame, claim: ClaimSpec) -> tuple[float, dict[str, float]]:
     """(heterogeneity p, per-scene mean effect) of a paired claim pooled over several scenes: the
     scenes as the study file writes them, each over its instances (per-instance means for a claim
-    with the instance as its unit, ``instance_unit.by_instance``)."""
+    with the instance as its unit, ``instance_unit.by_instance``, the pilot left out)."""
     if claim.test not in ("mean", "contrast") or not claim.b or claim.pair != "seed" or len(claim.scenes) == 1:
         return math.nan, {}
-    d = C.paired_differences(df, claim, claim.scenes)
+    df = df if takes_instances(claim) else tested(df, claim)
+    several = instance_unit.by_instance(df, claim, claim.scenes)
+    d = C.paired_differences(instance_unit.units(df, claim, claim.scenes) if several else df, claim, claim.scenes)
     if d.empty:
         return math.nan, {}
-    if instance_unit.by_instance(df, claim, claim.scenes):
-        d = d.groupby(level="scene", sort=False).mean()  # an instance is one unit
     base = dict(zip(df.scene, df.instance_of)) if "instance_of" in df else {}
     scenes = pd.Index(d.index.get_level_values("scene")).map(lambda s: base.get(s, s))
     order = [s for s in (claim.scenes or tuple(dict.fromkeys(scenes))) if s in set(scenes)]

@@ -18,11 +18,13 @@ kind of scene* therefore takes the instance as its unit:
 A run-to-run claim (one fixed scene, the paper's secret 5) keeps the seed as its unit. The runs
 frame has the columns ``variant``, ``scene``, ``instance``, ``seed`` and the metric.
 
-A study's claims (``claim_compare.compare``) use it through ``claim_test``: a mean claim whose runs
-span 2 or more instances of one of its scenes (``by_instance``; the study's runs frame names each
-run's scene as written, ``instance_of``, and its ``instance``: ``spec.instances``) is tested with
-the (instance_of, instance) as its unit, unless it says ``unit: seed``; with one instance per
-scene it keeps today's test over seeds. ``unit_text`` is what a verdict row says its unit is.
+A study's claims (``claim_compare.compare``) use it through ``claim_test`` and ``units``: a mean,
+contrast or interaction claim (``spec.instances.takes_instances``: not ``unit: seed``) whose runs
+include a fresh instance (1, 2, …) of one of its scenes (``by_instance``; the study's runs frame
+names each run's scene as written, ``instance_of``, and its ``instance``) is tested with the
+(instance_of, instance) as its unit on the fresh instances only: instance 0, the scene as
+written, is every claim's pilot and is left out (``spec.instances.tested``). Without a fresh
+instance it keeps today's test over seeds. ``unit_text`` is what a verdict row says its unit is.
 """
 
 from __future__ import annotations
@@ -35,7 +37,8 @@ import pandas as pd
 from scipy import stats as sps
 
 from harness.analysis import claim_tests
-from harness.spec.study_schema import ClaimSpec, Comparison, Pairing, Unit, plural
+from harness.spec.instances import PILOT, takes_instances, tested
+from harness.spec.study_schema import ClaimSpec, Pairing, plural
 
 UNIT = ["scene", "instance"]
 
@@ -129,6 +132,12 @@ def claim_runs(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> p
     return runs
 
 
+def tested_runs(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> pd.DataFrame:
+    """``claim_runs`` as the claim's test reads them: the pilot instances left out once a fresh
+    instance ran (``spec.instances.tested``)."""
+    return tested(claim_runs(df, claim, scenes), claim)
+
+
 def instances_spanned(runs: pd.DataFrame) -> pd.Series:
     """Distinct instances per scene as written (index ``instance_of``) among ``runs``."""
     if runs.empty:
@@ -137,33 +146,48 @@ def instances_spanned(runs: pd.DataFrame) -> pd.Series:
 
 
 def by_instance(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> bool:
-    """Is ``claim`` tested with the instance as its unit? A mean claim (``unit: instance``, the
-    default) whose runs span 2 or more instances of one of its scenes."""
-    if claim.test != Comparison.mean or claim.unit != Unit.instance:
+    """Is ``claim`` tested with the instance as its unit? A mean, contrast or interaction claim
+    (not ``unit: seed``) with runs on a fresh instance of one of its scenes."""
+    if not takes_instances(claim):
         return False
-    spanned = instances_spanned(claim_runs(df, claim, scenes))
-    return bool(len(spanned)) and int(spanned.max()) >= 2
+    return bool((claim_runs(df, claim, scenes).instance > PILOT).any())
+
+
+def units(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> pd.DataFrame:
+    """The claim's tested runs as one row per (variant, scene as written, instance): each
+    instance's mean of the metric over its seeds, its instance number in the ``seed`` column and
+    no instance columns, so that a test pairing runs by (scene, seed) pairs them by instance (a
+    contrast, an interaction) and reads every row."""
+    runs = tested_runs(df, claim, scenes)
+    out = runs.groupby(["variant", "instance_of", "instance"], sort=True)[claim.metric].mean().reset_index()
+    return out.rename(columns={"instance_of": "scene", "instance": "seed"}).assign(status="FINISHED")
 
 
 def claim_test(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> claim_tests.Result:
     """The claim's own test (paired by instance for ``pair: seed``, Welch for ``pair: none``,
-    one-sample without ``b``) on per-(instance_of, instance) means over seeds (``instance_test``)."""
-    runs = claim_runs(df, claim, scenes)
+    one-sample without ``b``) on per-(instance_of, instance) means over seeds (``instance_test``),
+    the pilot instances left out."""
+    runs = tested_runs(df, claim, scenes)
     return instance_test(runs.assign(scene=runs.instance_of), claim.metric, claim.a, claim.b or None, claim.sesoi,
                          paired=claim.pair == Pairing.seed)
 
 
 def unit_text(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> str:
     """What the claim's test counts as a unit on these runs: ``3 instances`` (per-instance means;
-    ``6 instances of 2 scenes``), else seeds: ``seeds of 1 instance``, ``seeds of 1 instance of each
-    of 2 scenes``, ``seeds of 4 instances`` (a run-to-run claim over several instances)."""
-    spanned = instances_spanned(claim_runs(df, claim, scenes))
+    ``6 instances of 2 scenes``; ``, pilot left out`` when instance 0 ran too), else seeds: ``seeds
+    of 1 instance``, ``seeds of 1 instance of each of 2 scenes``, ``seeds of 4 instances`` (a
+    run-to-run claim over several instances)."""
+    ran = claim_runs(df, claim, scenes)
+    if by_instance(df, claim, scenes):
+        spanned = instances_spanned(tested(ran, claim))
+        k, n = int(spanned.sum()), len(spanned)
+        pilot = ", pilot instance 0 left out" if (ran.instance == PILOT).any() else ""
+        return plural(k, "instance") + (f" of {n} scenes" if n > 1 else "") + pilot
+    spanned = instances_spanned(tested(ran, claim))
     k, n = int(spanned.sum()), len(spanned)
     if not k:
         return ""
     of_scenes = f" of {n} scenes" if n > 1 else ""
-    if by_instance(df, claim, scenes):
-        return plural(k, "instance") + of_scenes
     if (spanned == 1).all():
         return "seeds of 1 instance" + (f" of each of {n} scenes" if n > 1 else "")
     return f"seeds of {plural(k, 'instance')}{of_scenes}"

@@ -107,7 +107,9 @@ class Ladder:
 
 
 def ladders_of(scenes: Sequence[StudyScene]) -> list[Ladder]:
-    """The ladders the profile's cells form, in order of first mention, rungs in ladder order."""
+    """The ladders the profile's cells form, in order of first mention, rungs in ladder order: of
+    the scenes as written (instance 0; a ladder reads seeds of one scene, ``spec.instances``)."""
+    scenes = [s for s in scenes if s.instance == 0]
     names = list(dict.fromkeys(name for s in scenes for name, _ in s.rungs))
     out = []
     for name in names:

@@ -15,10 +15,14 @@ is a function of the runs alone — recomputing it from a ``runs.csv`` gives the
 runs beyond a look's count wait for that look.
 
 A claim's runs enter in seed order: seed ``base_seed`` on each of the claim's scenes (in the
-claim's order), then the next seed (``SeqClaim.cells``); a look at n runs per arm (pairs for a
-paired claim) reads the first n cells, and a cell that has not finished holds back every cell
-after it, so no run is ever skipped. ``next_round`` is the ``study run`` selection that adds the
-next round of every continuing claim. The command and its printing: ``harness.cli.decide``.
+claim's order), then the next seed (``SeqClaim.cells``) — or, when the profile draws its scenes
+as several instances and the claim takes the instance as its unit (``spec.instances``), in
+instance order: fresh instance 1 of each of its scenes at seed ``base_seed``, then instance 2, …
+(one run per instance and arm; instance 0, the pilot, never enters), so that a look reads
+instances and the claim's cap is a number of instances, at most those the profile draws. A
+look at n runs per arm (pairs for a paired claim) reads the first n cells, and a cell that has
+not finished holds back every cell after it, so no run is ever skipped. ``next_round`` is the
+``study run`` selection that adds the next round of every continuing claim. The command and its printing: ``harness.cli.decide``.
 
     d = design(load_study("ablation"), "quick", load_register())
     for family in decide(d, collect("ablation", selection(d)).df): ...
@@ -36,6 +40,7 @@ import pandas as pd
 
 from ftgspp.errors import InputError
 from harness.analysis import claim_tests as C, sequential as Q, stats, verdicts as V
+from harness.spec.instances import PILOT, instance_name, takes_instances
 from harness.spec.paper_register import Register
 from harness.spec.runs import Selection
 from harness.spec.study_schema import ClaimSpec, Comparison, Pairing, ProfileSpec, StudySpec
@@ -51,6 +56,7 @@ class SeqClaim:
     spec: ClaimSpec
     plan: Q.Plan
     base_seed: int
+    fresh: int = 0  # fresh instances of each of its scenes (the instance its unit); 0: seeds of the scene
 
     @property
     def paired(self) -> bool:
@@ -58,16 +64,26 @@ class SeqClaim:
 
     @property
     def unit(self) -> str:
-        """What the plan counts: pairs, runs per arm (Welch) or runs (one sample)."""
+        """What the plan counts: pairs, runs per arm (Welch) or runs (one sample); of instances
+        when the instance is the unit."""
+        if self.fresh:
+            return "paired instances" if self.paired else "instances per arm" if self.spec.b else "instances"
         return "pairs" if self.paired else "runs per arm" if self.spec.b else "runs"
 
     def seeds(self, n: int) -> int:
-        """Seeds that give each arm ``n`` runs over the claim's scenes."""
-        return math.ceil(n / len(self.spec.scenes))
+        """Seeds that give each arm ``n`` runs over the claim's scenes (one per instance)."""
+        return 1 if self.fresh else math.ceil(n / len(self.spec.scenes))
 
     def cells(self, n: int) -> list[tuple[str, int]]:
-        """The first ``n`` (scene, seed) cells of an arm, in the order its runs enter."""
+        """The first ``n`` (scene, seed) cells of an arm, in the order its runs enter (module docstring)."""
+        if self.fresh:
+            return [(instance_name(s, i), self.base_seed) for i in range(PILOT + 1, PILOT + 1 + self.fresh)
+                    for s in self.spec.scenes][:n]
         return [(s, self.base_seed + r) for r in range(self.seeds(n)) for s in self.spec.scenes][:n]
+
+    def scenes(self, n: int) -> tuple[str, ...]:
+        """The scenes (instances) a look at ``n`` reads: the claim's own, or its first fresh instances."""
+        return tuple(dict.fromkeys(s for s, _ in self.cells(n))) if self.fresh else self.spec.scenes
 
 
 @dataclass(frozen=True)
@@ -123,6 +139,16 @@ def plan_of(claim: ClaimSpec, profile: ProfileSpec) -> Q.Plan:
     plan = Q.Plan(**keys, cpu_hours_per_run=hours, arms=2 if claim.b else 1)
     plan.schedule()  # raises when the caps leave fewer than 2 runs an arm
     return plan
+
+
+def fresh_instances(claim: ClaimSpec, profile: ProfileSpec) -> int:
+    """Fresh instances (1, 2, …) the profile draws of each of the claim's scenes, the fewest of
+    any, when the claim takes the instance as its unit (``spec.instances.takes_instances``); 0
+    otherwise (its runs are seeds of the scenes as written)."""
+    if not takes_instances(claim):
+        return 0
+    drawn = [sum(1 for s in profile.scenes if s.base == name and s.instance > PILOT) for name in claim.scenes]
+    return min(drawn, default=0)
 
 
 def _why_not(study: StudySpec, profile: ProfileSpec, claim: ClaimSpec, register: Register) -> str:
@@ -182,15 +208,23 @@ def design(study: StudySpec, profile: str, register: Register,
     for c in study.claims:
         why = _why_not(study, prof, c, register)
         if c.test != Comparison.mean:
-            left_out.append((c.id, why or f"a {c.test} claim: the report decides it at fixed n"))
+            counted = counts_in_group(study.name, c, register)
+            a = "an" if str(c.test)[0] in "aeiou" else "a"
+            left_out.append((c.id, f"{a} {c.test} claim: the report decides it at fixed n" if counted else why))
             continue
         if why:
             left_out.append((c.id, why))
             continue
         try:
-            families.setdefault(str(c.group), []).append(SeqClaim(c, plan_of(c, prof), study.base_seed))
+            claim = SeqClaim(c, plan_of(c, prof), study.base_seed, fresh_instances(c, prof))
         except ValueError as err:
             raise InputError(f"{where}: claim {c.id}", f"impossible plan ({err})") from None
+        if claim.fresh and claim.plan.n_max > claim.fresh * len(c.scenes):
+            raise InputError(f"{where}: claim {c.id}", f"its cap is {claim.plan.n_max} {claim.unit}, but the"
+                                                       f" {prof.name} profile draws {claim.fresh} fresh instances of"
+                                                       f" each of its {len(c.scenes)} scene(s): raise `instances:`"
+                                                       " or lower the cap")
+        families.setdefault(str(c.group), []).append(claim)
     if not families:
         raise InputError(where, f"none of its mean claims is counted and run by the {prof.name} profile")
     # the other study files are read only now, so that this study's own errors come first
@@ -203,7 +237,7 @@ def selection(d: Design) -> Selection:
     """The runs every sequential claim may use: its arms on its scenes, up to the most seeds a cap needs."""
     seeds = max(c.seeds(c.plan.n_max) for c in d.claims)
     variants = list(dict.fromkeys(v for c in d.claims for v in c.spec.arms()))
-    scenes = list(dict.fromkeys(s for c in d.claims for s in c.spec.scenes))
+    scenes = list(dict.fromkeys(s for c in d.claims for s in c.scenes(c.plan.n_max)))
     return Selection(profile=d.profile.name, seeds=seeds, variants=variants, scenes=scenes)
 
 
@@ -323,7 +357,10 @@ def next_round(d: Design, families: list[FamilyReplay], df: pd.DataFrame) -> Rou
     done = finished_runs(df)
     going = [o for o in going if missing_cells(o, done)] or going
     variants = tuple(dict.fromkeys(v for o in going for v in o.claim.spec.arms()))
-    scenes = tuple(dict.fromkeys(s for o in going for s in o.claim.spec.scenes))
+    # a claim on instances asks for the instances it lacks; a claim on seeds for its scenes up to ``seeds``
+    scenes = tuple(dict.fromkeys(s for o in going for s in (
+        [cell[1] for cell in missing_cells(o, done)] or o.claim.scenes(o.needs) if o.claim.fresh
+        else o.claim.spec.scenes)))
     seeds = max(o.claim.seeds(o.needs) for o in going)
     grid = df[df.variant.isin(variants) & df.scene.isin(scenes) & (df.seed < d.study.base_seed + seeds)]
     runs = int((grid.status != "FINISHED").sum())

@@ -51,7 +51,8 @@ import numpy as np
 import pandas as pd
 
 from harness.analysis import claim_compare, claim_tests as C, instance_unit, stats
-from harness.spec.paper_register import Register, Statement
+from harness.analysis.paper_side import paper_columns, size_text  # re-exported: V.size_text
+from harness.spec.paper_register import Register
 from harness.spec.study_schema import ClaimSpec
 
 REPRODUCED, CONTRADICTED, EQUIVALENT, INCONCLUSIVE = "reproduced", "contradicted", "equivalent", "inconclusive"
@@ -89,76 +90,6 @@ def comparison_text(claim: ClaimSpec) -> str:
     if claim.test == "contrast":
         return " and ".join(" ".join(f"{k:+g}·{v}" for v, k in w) for w in claim.contrasts) + where
     return f"{claim.a} − {claim.b or '0'}{where}"
-
-
-def paper_columns(statement: Statement | None, test: str) -> dict[str, str]:
-    """The paper's numbers, its own evidence per dataset and its effects (for the size judgement
-    and the forest plot), from the statement's register entry."""
-    if statement is None:
-        return {"paper_statement": "", "paper_source": "", "paper_numbers": "", "paper_evidence": "",
-                "paper_effects": ""}
-    numbers, evidence, effects = [], [], []
-    for r in statement.numbers:
-        note = f" ({r.note})" if r.note else ""
-        if test == "variance" and r.a_std is not None and r.b_std is not None and r.a is None:
-            numbers.append(f"{r.dataset}: SD {r.b_std:g} → {r.a_std:g} ({r.n} runs){note}")
-            effects.append(f"{r.dataset}={r.a_std / r.b_std:.6g}")
-            evidence.append(f"{r.dataset}: {_f_test(r.a_std, r.b_std, r.n)}")
-            continue
-        if test == "spread" and r.a_std is not None and r.a is None:
-            numbers.append(f"{r.dataset}: SD {r.a_std:g} ({r.n} runs){note}")
-            effects.append(f"{r.dataset}={r.a_std:.6g}")
-            continue
-        if r.a is None:
-            numbers.append(f"{r.dataset}: {r.note or 'no number'}")
-            continue
-        pm = (lambda v, sd: f"{v:g} ± {sd:g}" if sd is not None else f"{v:g}")
-        numbers.append((f"{r.dataset}: {pm(r.b, r.b_std)} → {pm(r.a, r.a_std)}" + (f" ({r.n} runs)" if r.n else "")
-                        if r.b is not None else f"{r.dataset}: {r.a:+g}") + note)
-        effects.append(f"{r.dataset}={r.effect:.6g}")
-        if r.b is not None:
-            ev = stats.paper_evidence(r.a, r.b, r.a_std, r.b_std, r.n)
-            evidence.append(f"{r.dataset}: {ev.effect:+.2f}, " + (
-                "no spread reported for this configuration" if math.isnan(ev.p) else
-                f"p = {ev.p:.2g} ({ev.how}): {'distinguishable' if ev.p < stats.ALPHA else 'not distinguishable'}"
-                " from its own spread"))
-    return {"paper_statement": statement.statement, "paper_source": statement.source,
-            "paper_numbers": "; ".join(numbers), "paper_evidence": "; ".join(evidence),
-            "paper_effects": ";".join(effects)}
-
-
-def _f_test(a_std: float, b_std: float, n: int | None) -> str:
-    """The paper's SD ratio against chance for its n (a two-sided F-test on its SDs)."""
-    if not n:
-        return "no run count reported"
-    from scipy import stats as sps
-
-    f = (a_std / b_std) ** 2
-    p = 2 * min(sps.f.cdf(f, n - 1, n - 1), sps.f.sf(f, n - 1, n - 1))
-    return f"SD ratio {a_std / b_std:.2f}, F-test p = {p:.2g} ({'distinguishable' if p < stats.ALPHA else 'not distinguishable'})"
-
-
-def size_text(effects: str, effect: float, low: float, high: float, test: str = "mean") -> str:
-    """Per dataset of the paper: its effect inside our 95% CI ("as large as the paper's"); else,
-    read along the paper's direction (away from 0, or from 1 for an SD ratio), ours "smaller" or
-    "larger than the paper's" — or "opposite direction" when our effect has the other sign."""
-    out = []
-    centre = 1.0 if test == "variance" else 0.0
-    for part in filter(None, str(effects or "").split(";")):
-        dataset, value = part.rsplit("=", 1)
-        v = float(value)
-        if not (np.isfinite(low) and np.isfinite(high)):
-            continue
-        paper, ours = np.sign(v - centre), np.sign(effect - centre)
-        if low <= v <= high:
-            judged = "as large as the paper's"
-        elif paper != 0 and ours == -paper:
-            judged = "opposite direction"
-        else:  # the paper's effect beyond our CI on its own side: ours is smaller
-            beyond = v > high if paper >= 0 else v < low
-            judged = "smaller than the paper's" if beyond and paper != 0 else "larger than the paper's"
-        out.append(f"{dataset}: {judged}")
-    return "; ".join(out)
 
 
 def _row(claim: ClaimSpec, scene: str, scope: str, study: str, register: Register | None) -> dict:
@@ -320,6 +251,15 @@ def _side(claimed: bool) -> str:
     return "the claimed" if claimed else "the opposite"
 
 
+def sequential_rows(frame: pd.DataFrame) -> pd.Series:
+    """Which counted rows a sequential design decides (``report.sequential_rows``: a
+    ``seq_verdict``); False everywhere for a frame without one."""
+    if "seq_verdict" not in frame or frame.empty:
+        return pd.Series(False, index=frame.index)
+    text = frame.seq_verdict.astype(object).fillna("").astype(str)
+    return frame.counted.astype(bool) & (text != "")
+
+
 def decide(frame: pd.DataFrame, method: str = CORRECTION, label: str = "") -> pd.DataFrame:
     """``frame`` with ``p_adj``, ``p_tost_adj``, ``family``, ``counted`` and ``verdict`` per row: the
     counted rows of each group are one family, corrected with ``method`` over their difference
@@ -329,21 +269,39 @@ def decide(frame: pd.DataFrame, method: str = CORRECTION, label: str = "") -> pd
     ``ci_adj_level``: ``adjusted_level``; 95% for rows in no family) from ``evaluate``'s per-row
     interval, which ``decide`` then drops (a frame decided again keeps the intervals it has);
     ``interval_note`` when that interval lies wholly beyond the SESOI; ``exploratory`` for a
-    counted row not registered before its runs (``registered_before_runs``: ``spec.registration``)."""
+    counted row not registered before its runs (``registered_before_runs``: ``spec.registration``).
+    A row a sequential design decides (``seq_verdict``) takes that verdict and stays out of its
+    group's Holm, which runs at α less the sequential rows' shares (``alpha`` per row)."""
     out = frame.copy()
     if INTERVAL not in out:
         out[INTERVAL] = None
     out["counted"] = out.apply(counts, axis=1) if len(out) else []
+    seq = sequential_rows(out)
+    out["alpha"] = stats.ALPHA
     levels = pd.DataFrame(math.nan, index=out.index, columns=["d", "e", "stop"])
     for group, idx in out[out.counted].groupby("group").groups.items():
+        run_until = [i for i in idx if seq[i]]
+        idx = [i for i in idx if not seq[i]]
+        # one share per study (its sequential claims of the group hold it together: ``Design.alpha``)
+        seqs = out.loc[run_until]
+        held = float(seqs.groupby("study").seq_alpha.first().sum() if "study" in seqs else seqs.seq_alpha.max()) \
+            if run_until else 0.0
+        alpha = max(0.0, stats.ALPHA - held)
+        for i in run_until:
+            out.at[i, "family"] = (f"{group}{label}: run until decided at α {float(out.at[i, 'seq_alpha']):.3g};"
+                                   f" the fixed-n rows' Holm at α {alpha:.3g}")
+        if not idx:
+            continue
         p, p_tost = out.loc[idx, "p"].to_numpy(float), out.loc[idx, "p_tost"].to_numpy(float)
         p_adj, p_tost_adj = stats.union_adjust(p, p_tost, method)
         m = stats.family_size(p, p_tost)
         out.loc[idx, "p_adj"], out.loc[idx, "p_tost_adj"] = p_adj, p_tost_adj
-        out.loc[idx, "family"] = f"{group}{label}: {method.capitalize()} over {m} hypotheses"
+        rest = f" at α {alpha:.3g} (the rows run until decided hold the rest)" if run_until else ""
+        out.loc[idx, "family"] = f"{group}{label}: {method.capitalize()} over {m} hypotheses{rest}"
         out.loc[idx, "family_size"] = m
+        out.loc[idx, "alpha"] = alpha
         if method == "holm":  # the step levels are Holm's
-            level_d, level_e, stop = stats.holm_levels(p, p_tost)
+            level_d, level_e, stop = stats.holm_levels(p, p_tost, alpha)
             levels.loc[idx, "d"], levels.loc[idx, "e"], levels.loc[idx, "stop"] = level_d, level_e, stop
     for i in out.index:
         r = out.loc[i]
@@ -360,11 +318,23 @@ def decide(frame: pd.DataFrame, method: str = CORRECTION, label: str = "") -> pd
             out.at[i, "verdict"] = WITHDRAWN if r.withdrawn or r.role == REPLACED else EVIDENCE
             _interval_at(out, i, RAW_LEVEL)
             continue
-        v = verdict(r.expect, float(r.effect), r.test, float(r.p_adj), float(r.p_tost_adj))
+        if seq[i]:  # decided by the sequential replay (``report.sequential_rows``)
+            v = str(r.seq_verdict)
+            out.at[i, "p_adj"], out.at[i, "p_tost_adj"] = math.nan, math.nan
+        else:
+            v = verdict(r.expect, float(r.effect), r.test, float(r.p_adj), float(r.p_tost_adj), float(r.alpha))
         out.at[i, "verdict"] = v
         out.at[i, "exploratory"] = r.registered_before_runs == "no"
         if v == INCONCLUSIVE:
-            out.at[i, "n_needed"] = _needed(r, stats.ALPHA / max(1.0, float(r.family_size)))
+            out.at[i, "n_needed"] = (float(r.seq_needed) if seq[i] else
+                                     _needed(r, float(r.alpha) / max(1.0, float(r.family_size))))
+        if seq[i]:
+            _interval_at(out, i, RAW_LEVEL)  # a naive 95% interval: no repeated-confidence interval is computed
+            out.at[i, "interval_note"] = ""
+            if r.role == DECIDES:
+                out.at[i, "paper_size"] = size_text(r.paper_effects, float(r.effect), float(r.ci_low),
+                                                    float(r.ci_high), r.test)
+            continue
         if r.role == DECIDES:
             out.at[i, "paper_size"] = size_text(r.paper_effects, float(r.effect), float(r.ci_low), float(r.ci_high),
                                                 r.test)

@@ -137,8 +137,8 @@ def _continuing(d: S.Design, o: S.Outcome, done: set) -> str:
     head = f"continue: look {(o.decision.look if o.decision else 0) + 1} needs {o.needs} {c.unit}"
     if not missing:
         return head + ", which it has (its family's next round waits for its other claims)"
-    return (head + f"; add {plural(len(missing), 'run')} ({', '.join(c.spec.arms())} on {', '.join(c.spec.scenes)},"
-            f" --seeds {c.seeds(o.needs)}), {_hours(d, len(missing))}")
+    return (head + f"; add {plural(len(missing), 'run')} ({', '.join(c.spec.arms())} on"
+            f" {', '.join(c.scenes(o.needs))}, --seeds {c.seeds(o.needs)}), {_hours(d, len(missing))}")
 
 
 def _at_cap(d: S.Design, o: S.Outcome) -> str:
@@ -151,9 +151,12 @@ def _at_cap(d: S.Design, o: S.Outcome) -> str:
         why = "its runs show no spread" if math.isnan(dec.runs_needed) else "more than 1000 per arm"
         return head + f"a fixed design's runs cannot be estimated ({why})"
     n = int(dec.runs_needed)
-    sel = Selection(d.profile.name, c.seeds(n), list(c.spec.scenes), list(c.spec.arms()))
+    more = S.SeqClaim(c.spec, c.plan, c.base_seed, math.ceil(n / len(c.spec.scenes))) if c.fresh else c
+    sel = Selection(d.profile.name, more.seeds(n), list(more.scenes(n)), list(c.spec.arms()))
+    draw = (f" drawn with `instances: {more.fresh + 1}` on {', '.join(c.spec.scenes)} in profiles.{d.profile.name}"
+            if c.fresh else "")
     return head + (f"a fixed design at that share needs {n} {c.unit} (80% power at the SESOI),"
-                   f" {_hours(d, n * c.plan.arms)} on {d.profile.machine}; on a cluster:"
+                   f" {_hours(d, n * c.plan.arms)} on {d.profile.machine}; on a cluster{draw}:"
                    f" {command_line(d.study.name, sel, launcher='slurm')}")
 
 

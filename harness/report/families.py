@@ -7,7 +7,8 @@ from the committed report in ``reports/`` — and decides them together, once pe
 index and each page read their rows from it, so the two always show the same verdict, the same
 p that decided it and the same family. Each claim's registration — was it registered before its
 runs? — is computed from git (``spec.registration``) on the runs it was tested on, before the
-decision, which names a counted row registered after its runs exploratory.
+decision, which names a counted row registered after its runs exploratory. A study's rows run
+until decided take the sequential replay's verdict (``report.sequential_rows``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from pathlib import Path
 import pandas as pd
 
 from harness.analysis import verdicts as V
-from harness.report import COMMITTED_REPORTS
+from harness.report import COMMITTED_REPORTS, sequential_rows
 from harness.report.results import collect, store_has_runs, trainer_fingerprints
 from harness.spec import registration, study_files
 from harness.spec.instances import instance_columns
@@ -58,8 +59,10 @@ def store_claims(name: str, register: Register, studies_dir: Path | None = None,
     n_done = int((data.df.status == "FINISHED").sum())
     if n_done == 0:
         return None
-    frame = with_registration(V.evaluate(add_differences(data.df), data.study.claims, name, register), data.df,
+    runs = add_differences(data.df)
+    frame = with_registration(V.evaluate(runs, data.study.claims, name, register), data.df,
                               data.study.claims, name, studies_dir)
+    frame = sequential_rows.annotate(frame, data.study, runs, register, studies_dir, profile)
     return StudyClaims(name, data.study.question, frame, (Path(name) / "index.md").as_posix(), n_done,
                        ", ".join(data.code_versions()), tuple(data.trainer_fingerprints()))
 
@@ -79,8 +82,9 @@ def report_claims(name: str, root: Path, register: Register, studies_dir: Path |
     code = m.group(1).strip() if (m := CODE_AT.search(page)) else ""
     study = load_study(name, studies_dir)
     df = instance_columns(df, study)  # from the study's scenes: a runs.csv may predate the columns
-    frame = with_registration(V.evaluate(add_differences(df), study.claims, name, register), df, study.claims,
-                              name, studies_dir)
+    runs = add_differences(df)
+    frame = with_registration(V.evaluate(runs, study.claims, name, register), df, study.claims, name, studies_dir)
+    frame = sequential_rows.annotate(frame, study, runs, register, studies_dir)
     return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),
                        n_done, code, tuple(trainer_fingerprints(df)), source="committed report")
 

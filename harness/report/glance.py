@@ -58,6 +58,8 @@ def reason(s: Statement, r: pd.Series | None) -> str:
     if r.verdict == V.DESCRIBED:
         return "a spread described beside the paper's; no test"
     beyond = f"; {r.interval_note}" if isinstance(r.get("interval_note", ""), str) and r.get("interval_note") else ""
+    if isinstance(r.get("seq_text"), str) and r.seq_text and r.get("counted", False):
+        return r.seq_text  # decided by its study's sequential design (report.sequential_rows)
     if r.verdict == V.INCONCLUSIVE:
         tost = f", TOST p = {p_text(r.p_tost_adj)}" if not math.isnan(r.p_tost_adj) else ""
         return f"no test rejects at the family's α (Holm p = {p_text(r.p_adj)}{tost}){beyond}"

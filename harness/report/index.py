@@ -47,6 +47,7 @@ from harness.report.claims_table import (
     verdict_text,
 )
 from harness.report.currency import plan_frame, stale_note
+from harness.report.design_note import design_paragraph
 from harness.report.families import StudyClaims, decide_all, family_verdicts, forget
 from harness.report.findings import write_findings
 from harness.report.fmt import text
@@ -193,7 +194,7 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     stale = stale_studies(entries, current) if current else []
     prints = sorted({f for e in entries for f in e.fingerprints})
     lines = ["# The answers: every statement of the paper on our runs", "",
-             *(stale_note(prints, current, "make reports", *todo) if current else [])]
+             *(stale_note(prints, current, "make reports", *todo) if current else []), *design_paragraph()]
     paper = [s for s in register.statements if s.family == "paper"]
     lines += glance_section(paper, rows, f"The paper's {len(paper)} statements at a glance")
     lines += glance_section([s for s in register.statements if s.family != "paper"], rows,

@@ -2,9 +2,11 @@
 
 A method claim about a kind of scene needs several instances of it (``spec.instances``); seeds on
 one instance are technical replicates. ``committed_spans()`` lists, for every counted method
-claim — group ``paper`` or ``extension``, ``test: mean``, counted in its family (not withdrawn,
-not evidence for or replaced in the paper register) and not a run-to-run claim — how many
-instances of each of its scenes its runs in the committed reports (``reports/<study>/runs.csv``)
+claim — group ``paper`` or ``extension``, a mean, contrast or interaction claim, counted in its
+family (not withdrawn, not evidence for or replaced in the paper register) and not a run-to-run
+claim — how many
+instances of each of its scenes the runs its test reads (fresh instances, once any ran: the
+pilot instance 0 is left out) in the committed reports (``reports/<study>/runs.csv``)
 span; ``claim_spans`` does it for one study's claims and runs frame.
 
 A run-to-run claim is about repeated optimisation of one fixed scene (the paper's secret 5: the
@@ -24,14 +26,14 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.analysis.instance_unit import claim_runs, instances_spanned
+from harness.analysis.instance_unit import instances_spanned, tested_runs
 from harness.analysis.sequential_study import counts_in_group
 from harness.report import COMMITTED_REPORTS
-from harness.spec.instances import instance_columns
+from harness.spec.instances import instance_columns, takes_instances
 from harness.spec.metrics import add_differences
 from harness.spec.paper_register import Register
 from harness.spec.study_files import list_studies, load_register, load_study
-from harness.spec.study_schema import ClaimGroup, ClaimSpec, Comparison, Unit
+from harness.spec.study_schema import ClaimGroup, ClaimSpec, Unit
 
 METHOD_GROUPS = (ClaimGroup.paper, ClaimGroup.extension)
 RUN_TO_RUN_STUDIES = ("secret5", "secret5_cc")  # the paper's secret 5 protocol: one fixed scene, seeds vary
@@ -44,23 +46,24 @@ def run_to_run(study: str, claim: ClaimSpec) -> bool:
 
 
 def method_claim(study: str, claim: ClaimSpec, register: Register) -> bool:
-    """A counted method claim about a kind of scene: a paper or extension mean claim that counts
-    in its family (``sequential_study.counts_in_group``) and is not run-to-run."""
-    return (claim.group in METHOD_GROUPS and claim.test == Comparison.mean and not run_to_run(study, claim)
+    """A counted method claim about a kind of scene: a paper or extension mean, contrast or
+    interaction claim (``spec.instances.takes_instances``) that counts in its family
+    (``sequential_study.counts_in_group``) and is not run-to-run."""
+    return (claim.group in METHOD_GROUPS and takes_instances(claim) and not run_to_run(study, claim)
             and counts_in_group(study, claim, register))
 
 
 def claim_spans(study: str, claims: tuple[ClaimSpec, ...], runs: pd.DataFrame | None,
                 register: Register) -> list[dict]:
     """One row (``COLUMNS``) per counted method claim of ``study``: ``instances``, the fewest
-    instances any of its scenes has among its finished runs (0 when a scene has none, or there
+    instances any of its scenes has among its tested runs (0 when a scene has none, or there
     are no runs); ``per_scene``, each scene's count (``studio: 3, exposure_drift: 1``); ``runs``,
     its finished runs. ``runs``: the study's runs frame, with or without instance columns."""
     rows = []
     for c in claims:
         if not method_claim(study, c, register):
             continue
-        ran = claim_runs(runs, c, c.scenes) if runs is not None and not runs.empty else pd.DataFrame()
+        ran = tested_runs(runs, c, c.scenes) if runs is not None and not runs.empty else pd.DataFrame()
         spanned = instances_spanned(ran) if len(ran) else pd.Series(dtype=int)
         counts = {s: int(spanned.get(s, 0)) for s in c.scenes}
         rows.append({"study": study, "claim": c.id, "group": str(c.group), "scenes": ", ".join(c.scenes),

@@ -7,15 +7,28 @@ the loader (``spec.study_files``) expands it here into K scenes:
 - instance 0 is the scene exactly as written: its name, generator arguments and data folder, so
   every run made before instances existed keeps its run key and config hash;
 - instance i ≥ 1 is ``<name>@<i>`` (``instance_name``), drawn with the same generator arguments
-  and ``synth.seed`` + i, in its own folder (``data/synth/<name>@<i>``). ``@`` cannot appear in a
-  scene name written in a file (``study_files.NAME_PATTERN``), so an instance never collides with
-  a written scene, and it is plain text in MLflow tags, Hydra override values and folder names;
+  and ``synth.seed`` + 1000 i (``SEED_STRIDE``: two written scenes whose seeds differ by less
+  never share a draw, e.g. ``seed: 21`` and ``seed: 23`` of one preset), in its own folder
+  (``data/synth/<name>@<i>``), and run at one seed (``FRESH_SEEDS``; ``--seeds`` still wins):
+  with the instance as the unit, one more instance buys more than a second seed of one (the
+  seeds' noise is only part of an instance mean's variance, the instance's own effect the
+  rest). ``@`` cannot appear in a scene name written in a file (``study_files.NAME_PATTERN``),
+  so an instance never collides with a written scene, and it is plain text in MLflow tags,
+  Hydra override values and folder names;
 - each carries ``instance_of`` (the written name, which claims use) and ``instance`` (i); a
   label, when the scene has one, says which instance (``colour shift, instance 2``).
 
 Only a synthetic scene has instances: real data is one recording. ``instance_columns`` gives a
 study's runs frame its ``instance_of`` and ``instance`` columns from the study's scene specs (not
 from run tags, so runs made before instances, and committed ``runs.csv`` files, get them too).
+
+**Instance 0 is the pilot.** Every claim was written, and its arms explored, on the scene as
+written, before instances existed; so a claim with the instance as its unit (``takes_instances``:
+a mean, contrast or interaction claim without ``unit: seed``) is tested on the *fresh* instances
+1, 2, … of each scene that has any (``tested``), never on instance 0, whatever instance 0's runs
+say; a claim with the seed as its unit reads the scenes as written only (a fresh instance has
+one run per variant). The rule is fixed in code before any run; "registered before its runs" is judged on the
+runs the test reads (``spec.registration``).
 """
 
 from __future__ import annotations
@@ -26,10 +39,14 @@ from pathlib import Path
 import pandas as pd
 
 from ftgspp.errors import InputError
-from harness.spec.study_schema import StudyScene, StudySpec
+from harness.spec.study_schema import ClaimSpec, Comparison, StudyScene, StudySpec, Unit
 
 SEPARATOR = "@"
 COLUMNS = ("instance_of", "instance")
+PILOT = 0  # the scene as written: where every claim was explored (module docstring)
+FRESH_SEEDS = 1  # seeds of a fresh instance (module docstring)
+SEED_STRIDE = 1000  # instance i draws with synth.seed + SEED_STRIDE * i
+INSTANCE_TESTS = (Comparison.mean, Comparison.contrast, Comparison.interaction)  # tests that can take instances
 
 
 def instance_name(base: str, i: int) -> str:
@@ -49,10 +66,12 @@ def expand(scene: StudyScene, where: str) -> list[StudyScene]:
     folder = Path(scene.synth_dir)
     for i in range(scene.instances):
         name = instance_name(scene.name, i)
-        synth = scene.synth if i == 0 or scene.synth is None else {**scene.synth, "seed": int(scene.synth["seed"]) + i}
+        synth = (scene.synth if i == 0 or scene.synth is None
+                 else {**scene.synth, "seed": int(scene.synth["seed"]) + SEED_STRIDE * i})
         synth_dir = scene.synth_dir if i == 0 else (folder.parent / (name + folder.name[len(scene.name):])).as_posix()
         label = scene.label if i == 0 or not scene.label else f"{scene.label}, instance {i}"
-        out.append(dataclasses.replace(scene, name=name, synth=synth, synth_dir=synth_dir, label=label,
+        seeds = scene.seeds if i == PILOT else FRESH_SEEDS
+        out.append(dataclasses.replace(scene, name=name, synth=synth, synth_dir=synth_dir, label=label, seeds=seeds,
                                        instance_of=scene.name, instance=i))
     return out
 
@@ -82,3 +101,31 @@ def instance_columns(df: pd.DataFrame, study: StudySpec | None) -> pd.DataFrame:
     for k, (col, dtype) in enumerate(zip(COLUMNS, (object, "int64"))):
         out.insert(at + k, col, pd.Series([p[k] for p in pairs], index=out.index, dtype=dtype))
     return out
+
+
+def takes_instances(claim: ClaimSpec) -> bool:
+    """Does the claim take the instance as its unit once fresh instances ran? A mean, contrast or
+    interaction claim (a method's effect on a kind of scene) without ``unit: seed``."""
+    return claim.test in INSTANCE_TESTS and claim.unit == Unit.instance
+
+
+def fresh(runs: pd.DataFrame) -> pd.Series:
+    """Which rows are on a fresh instance: every row of a scene without other instances among
+    ``runs``, and no row of the pilot (instance 0) of a scene that has them."""
+    if "instance_of" not in runs or runs.empty:
+        return pd.Series(True, index=runs.index)
+    several = runs.groupby("instance_of", sort=False).instance.transform("max") > PILOT
+    return ~(several & (runs.instance == PILOT))
+
+
+def tested(runs: pd.DataFrame, claim: ClaimSpec) -> pd.DataFrame:
+    """The runs of ``runs`` the claim's test reads (module docstring): for a claim that takes
+    instances, without the pilot instance of a scene that has fresh ones among them; for any
+    other claim (the seed its unit: a spread, a variance, an existential search, ``unit: seed``),
+    the scenes as written only — repeated runs of one fixed scene, never a fresh instance's
+    single run."""
+    if "instance" not in runs:
+        return runs
+    if not takes_instances(claim):
+        return runs[runs.instance == PILOT]
+    return runs[fresh(runs)] if (runs.instance > PILOT).any() else runs

@@ -7,9 +7,11 @@ its registration fingerprint (``claim_fingerprint``) — its text, metric, test,
 ``sequential:`` block, both left out while absent, so no fingerprint of a claim without one
 changed when they were added); the definitions of its arms (their override lists in the study's
 ``variants:`` and in the quick profile's ``variants:``); and the definitions of its scenes in the
-quick profile (generator arguments, overrides, rungs and the ladders those set, and ``instances``
-when not 1). A claim's ``unit:`` is in it when it is not the default (``instance``) and one of the
-claim's scenes has several instances: only then does it change the test (``spec.instances``), so
+quick profile (generator arguments, overrides, rungs and the ladders those set, and
+``instances`` when not 1 — for a claim run until decided only that it is more than 1: its
+registered cap, not the count drawn, bounds what it reads). A claim's
+``unit:`` is in it when it is not the default (``instance``) and one of the claim's scenes has
+several instances: only then does it change the test (``spec.instances``), so
 marking a run-to-run claim on one instance ``unit: seed`` does not re-register it. A key left out
 counts as its default, so writing a default out changes nothing; a claim without ``scenes`` or ``among`` meant
 every scene or variant of the quick profile at that version, so a scene added there widened it.
@@ -26,7 +28,8 @@ gives another fingerprint than its first parent's. A working tree whose version 
 fingerprint than ``HEAD``'s is "not committed", registered after anything.
 
 ``registration(...)`` then answers "registered before its runs?": ``yes`` when both commits are
-ancestors of (or equal to) the commit of the claim's earliest run (``git merge-base
+ancestors of (or equal to) the commit of the earliest run the claim's test reads (once fresh
+scene instances ran, not the pilot instance 0's: ``spec.instances``) (``git merge-base
 --is-ancestor``; the runs' ``git_sha`` column, ``start_time`` for the order), ``no`` when one is
 not, ``unknown`` when git cannot say (no repository, a shallow clone, runs without a recorded
 commit or one this clone lacks) — said plainly, never guessed. A run made from a dirty tree
@@ -56,7 +59,7 @@ import yaml
 
 from harness.spec import git_repo
 from harness.spec.git_repo import repository
-from harness.spec.instances import on_scenes
+from harness.spec.instances import on_scenes, tested
 from harness.spec.study_schema import ClaimSpec
 
 YES, NO, UNKNOWN = "yes", "no", "unknown"
@@ -171,22 +174,26 @@ def claim_fingerprint(study: Any, sets: Any, claim_id: str) -> str | None:
     for k in LATER_KEYS:
         value = _set(claim.get(k))
         body.update({k: value} if value else {})
+    profiles = study.get("profiles") if isinstance(study.get("profiles"), dict) else {}
+    sequential = {str(n): _set(p.get("sequential")) for n, p in profiles.items()
+                  if body["test"] == "mean" and isinstance(p, dict) and _set(p.get("sequential"))}
     by_name = {s.get("name"): s for s in scenes}
     ladders = quick.get("ladders") if isinstance(quick.get("ladders"), dict) else {}
     scene_defs = {}
     for name in body["scenes"] or []:
         scene = by_name.get(name, {})
         rungs = scene.get("rungs") if isinstance(scene.get("rungs"), dict) else {}
-        several = {"instances": scene["instances"]} if scene.get("instances") not in (None, 1) else {}
+        # fresh instances change the test (the instance becomes its unit, the pilot is left out); their
+        # count is a fixed-n claim's n, while a claim run until decided reads its first n up to its
+        # registered cap, whatever the count drawn (instance i is the same draw for any count)
+        count = scene.get("instances")
+        several = {"instances": "several" if sequential else count} if count not in (None, 1) else {}
         scene_defs[str(name)] = {**{k: scene.get(k) for k in SCENE_KEYS},
                                  "ladders": {str(lad): ladders.get(lad) for lad in rungs}, **several}
     if claim.get("unit") not in (None, UNIT_DEFAULT) and any("instances" in d for d in scene_defs.values()):
         body["unit"] = claim["unit"]
     arms = {v: {"study": study_variants.get(v), "quick": None if quick_variants is None else quick_variants.get(v)}
             for v in _arms(body)}
-    profiles = study.get("profiles") if isinstance(study.get("profiles"), dict) else {}
-    sequential = {str(n): _set(p.get("sequential")) for n, p in profiles.items()
-                  if body["test"] == "mean" and isinstance(p, dict) and _set(p.get("sequential"))}
     return json.dumps(_canonical({"claim": body, "arms": arms, "scenes": scene_defs}
                                  | ({"sequential": sequential} if sequential else {})), sort_keys=True,
                       ensure_ascii=False)
@@ -298,16 +305,15 @@ def earliest_commit(runs: pd.DataFrame) -> tuple[str, str]:
 
 
 def _claim_runs(claim: ClaimSpec, runs: pd.DataFrame) -> pd.DataFrame:
-    """The finished runs a claim is tested on: its arms on its scenes (every instance of each)."""
+    """The finished runs a claim is tested on: its arms on its scenes (every instance of each, the
+    pilot instance 0 left out once fresh instances ran: ``spec.instances.tested``)."""
     if runs.empty or "status" not in runs:
         return runs.iloc[0:0]
     ok = runs[runs.status == "FINISHED"]
     arms = claim.arms()
     if arms:
         ok = ok[ok.variant.isin(arms)]
-    if not claim.scenes:
-        return ok
-    return ok[on_scenes(ok, claim.scenes)]
+    return tested(ok[on_scenes(ok, claim.scenes)] if claim.scenes else ok, claim)
 
 
 def _short(commit: str) -> str:

@@ -41,7 +41,7 @@ def _widened(raw: dict) -> dict:
     if quick.get("variants"):
         quick["variants"][PROBE_ARM] = ["seed=0"]
     scenes = quick["scenes"] if isinstance(quick["scenes"], list) else _sets()[quick["scenes"]]
-    probe = {k: v for k, v in copy.deepcopy(scenes[0]).items() if k not in ("variants", "rungs", "label")}
+    probe = {k: v for k, v in copy.deepcopy(scenes[0]).items() if k not in ("variants", "rungs", "label", "instances")}
     quick["scenes"] = [*scenes, {**probe, "name": PROBE_SCENE}]
     for s in quick["scenes"]:
         if s.get("variants"):

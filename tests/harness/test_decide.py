@@ -17,6 +17,7 @@ import pandas as pd
 import pytest
 import yaml
 
+from ftgspp.errors import InputError
 from harness.analysis import sequential as Q, sequential_study as S, stats
 from harness.cli import decide as D, study
 from harness.spec import registration, study_files
@@ -197,6 +198,56 @@ def test_at_its_cap_a_claim_says_how_many_runs_a_fixed_design_needs() -> None:
     seeds = int(cc.decision.runs_needed)
     assert f"needs {seeds} pairs" in line
     assert f"study run seq --profile quick --launcher slurm --seeds {seeds} --scenes studio --variants cc,base" in line
+
+
+def _instances_study(k: int) -> dict:
+    """SEQ_STUDY with studio drawn ``k`` times and only cc_mean (on studio) counted."""
+    raw = copy.deepcopy(SEQ_STUDY)
+    raw["claims"] = [raw["claims"][0]]
+    raw["profiles"]["quick"]["scenes"][0]["instances"] = k
+    return raw
+
+
+def _instance_frame(fresh: int, rng_seed: int = 4) -> pd.DataFrame:
+    """cc and base at seed 0 on instances 1..fresh of studio; the pilot (instance 0) with 3 seeds
+    and an effect of +9 dB that no instance-level look may read."""
+    rng = np.random.default_rng(rng_seed)
+    rows = []
+    for i in range(fresh + 1):
+        level, effect = rng.normal(30, 1), rng.normal(0.1, 0.5)
+        for seed in range(3 if i == 0 else 1):
+            for v, shift in (("base", 0.0), ("cc", 9.0 if i == 0 else effect)):
+                rows.append({"variant": v, "scene": "studio" if i == 0 else f"studio@{i}", "instance_of": "studio",
+                             "instance": i, "seed": seed, "status": "FINISHED",
+                             "psnr": level + shift + rng.normal(0, 0.05)})
+    return pd.DataFrame(rows)
+
+
+def test_with_instances_a_claim_adds_fresh_instances_and_never_reads_the_pilot() -> None:
+    with pytest.raises(InputError, match="draws 5 fresh instances"):  # cap 9 paired instances, 5 drawn
+        S.design(_study(_instances_study(6)), "quick", Register())
+    d = S.design(_study(_instances_study(10)), "quick", Register())
+    (cc,) = d.families["paper"]
+    assert cc.fresh == 9 and cc.unit == "paired instances" and cc.seeds(9) == 1
+    assert cc.cells(3) == [("studio@1", 0), ("studio@2", 0), ("studio@3", 0)]
+    assert S.selection(d).scenes == [f"studio@{i}" for i in range(1, 10)] and S.selection(d).seeds == 1
+    df = _instance_frame(5)
+    (paper,) = S.decide(d, df)
+    # by hand: cc − base per fresh instance in instance order, looks 3 and 5, at the study's share
+    ok = df[df.instance > 0].set_index(["variant", "instance"]).psnr
+    diffs = np.array([ok[("cc", i)] - ok[("base", i)] for i in range(1, 6)])
+    state = None
+    for n in (3, 5):
+        decisions, state = Q.decide_family([Q.Claim("cc_mean", diffs[:n], None, 0.2, plan=cc.plan)], state,
+                                           alpha=d.alpha("paper"))
+    assert [o.decision for o in paper.outcomes] == decisions and paper.outcomes[0].runs.n == 5
+    assert paper.outcomes[0].needs == 7  # undecided at 5: the next round asks for instances 6 and 7 at seed 0
+    nxt = S.next_round(d, [paper], df)
+    assert (nxt.scenes, nxt.seeds, nxt.own) == (("studio@6", "studio@7"), 1, 4)
+    assert "studio@6, studio@7, --seeds 1" in D._continuing(d, paper.outcomes[0], S.finished_runs(df))
+    # the pilot's +9 dB changes nothing
+    calm = df.assign(psnr=df.psnr.where(df.instance > 0, 30.0))
+    assert [o.decision for o in S.decide(d, calm)[0].outcomes] == decisions
 
 
 def _write(folder: Path, name: str, raw: dict) -> None:

@@ -56,16 +56,17 @@ def test_a_scene_with_instances_expands_into_named_draws_with_their_own_seed_and
     study = parse_study(mini(3), Path("mini.yaml"))
     quick = study.profiles["quick"]
     assert [s.name for s in quick.scenes] == ["easy", "easy@1", "easy@2"]
-    assert [s.synth["seed"] for s in quick.scenes] == [4, 5, 6]
+    assert [s.synth["seed"] for s in quick.scenes] == [4, 1004, 2004]
     assert [s.synth_dir for s in quick.scenes] == ["data/synth/easy", "data/synth/easy@1", "data/synth/easy@2"]
     assert [(s.instance_of, s.instance) for s in quick.scenes] == [("easy", 0), ("easy", 1), ("easy", 2)]
-    # the rest of the generator arguments, the scene's own seeds and variants: the same for every instance
+    # the rest of the generator arguments and the variants: the same for every instance
     assert all({**s.synth, "seed": 4} == quick.scenes[0].synth for s in quick.scenes)
-    assert all(s.seeds == 2 and s.variants == ("baseline", "cc") for s in quick.scenes)
+    assert all(s.variants == ("baseline", "cc") for s in quick.scenes)
+    assert [s.seeds for s in quick.scenes] == [2, 1, 1]  # a fresh instance runs one seed (FRESH_SEEDS)
     smoke = study.profiles["smoke"]  # derived from quick: the same instances, tiny and in their own folders
     assert [(s.name, s.synth["seed"], s.synth_dir) for s in smoke.scenes] == [
-        ("easy", 4, "data/synth/easy-smoke"), ("easy@1", 5, "data/synth/easy@1-smoke"),
-        ("easy@2", 6, "data/synth/easy@2-smoke")]
+        ("easy", 4, "data/synth/easy-smoke"), ("easy@1", 1004, "data/synth/easy@1-smoke"),
+        ("easy@2", 2004, "data/synth/easy@2-smoke")]
     assert [s.instance_of for s in smoke.scenes] == ["easy"] * 3
     # instance 0 is the scene exactly as written without `instances`
     plain = parse_study(mini(1), Path("mini.yaml")).profiles["quick"].scenes
@@ -166,15 +167,49 @@ def test_a_mean_claim_over_instances_is_the_instance_means_test(pair: str, b: st
     df = frame(5)
     c = claim(pair=pair, b=b)
     res = claim_compare.compare(df, c, c.scenes)
-    oracle = IU.instance_test(df.assign(scene=df.instance_of), "psnr", "cc", b or None, 0.1, paired=paired)
-    assert res.method == method and res.n == oracle.n
+    fresh = df[df.instance > 0]  # instance 0, the scene as written, is the pilot: never tested
+    oracle = IU.instance_test(fresh.assign(scene=fresh.instance_of), "psnr", "cc", b or None, 0.1, paired=paired)
+    assert res.method == method and res.n == oracle.n and oracle.n in ("4 instances", "4 vs 4 instances")
     assert (res.effect, res.p, res.p_tost, res.ci) == (oracle.effect, oracle.p, oracle.p_tost, oracle.ci)
     # the oracle itself is the claim's test on the per-instance means, computed here independently
-    means = df.groupby(["variant", "instance"]).psnr.mean().unstack("variant")
+    means = fresh.groupby(["variant", "instance"]).psnr.mean().unstack("variant")
     expected = C.compare_means(means.cc.to_numpy(), None if not b else means[b].to_numpy(), paired, 0.1)
     assert res.p == pytest.approx(expected.p, rel=1e-12) and res.effect == pytest.approx(expected.effect)
     row = V.evaluate(df, [c]).iloc[0]
-    assert row.unit == "5 instances" and row.n.endswith("instances")
+    assert row.unit == "4 instances, pilot instance 0 left out" and row.n.endswith("instances")
+
+
+def test_the_pilot_instance_never_enters_an_instance_level_test() -> None:
+    """Whatever instance 0 (where the claim was explored) says, the test reads the fresh instances only."""
+    df = frame(5)
+    wild = df.assign(psnr=df.psnr.where(~((df.instance == 0) & (df.variant == "cc")), 99.0))
+    for c in (claim(), claim(pair="none"), claim(b="")):
+        one, other = claim_compare.compare(df, c, c.scenes), claim_compare.compare(wild, c, c.scenes)
+        assert (one.effect, one.p, one.p_tost, one.n) == (other.effect, other.p, other.p_tost, other.n)
+    # without a fresh instance the pilot's seeds are all there is: today's test over seeds
+    only_pilot = frame(1, seeds=4)
+    assert claim_compare.compare(only_pilot, claim(), ("studio",)).n == "4 pairs"
+    # one fresh instance: the instance is the unit, and one is too few to test
+    with pytest.raises(ValueError, match="1 instances"):
+        claim_compare.compare(frame(2), claim(), ("studio",))
+
+
+def test_contrast_and_interaction_claims_take_fresh_instances_as_their_unit() -> None:
+    df = frame(6, scenes=("studio", "drift"), seed=5)
+    contrast = claim(test="contrast", contrasts=((("cc", 1.0), ("baseline", -1.0)),), a="", b="", scenes=("studio",))
+    res = claim_compare.compare(df, contrast, contrast.scenes)
+    fresh = df[(df.instance > 0) & (df.instance_of == "studio")]
+    means = fresh.groupby(["variant", "instance"]).psnr.mean().unstack("variant")
+    expected = C.compare_means((means.cc - means.baseline).to_numpy(), None, True, 0.1)
+    assert res.n == "5 instances" and res.p == pytest.approx(expected.p, rel=1e-12)
+    assert res.effect == pytest.approx(expected.effect)
+    inter = claim(test="interaction", scenes=("studio", "drift"))
+    res = claim_compare.compare(df, inter, inter.scenes)
+    both = df[df.instance > 0].groupby(["instance_of", "instance", "variant"]).psnr.mean().unstack("variant")
+    d = (both.cc - both.baseline)
+    expected = C.compare_means(d.loc["studio"].to_numpy(), d.loc["drift"].to_numpy(), False, 0.1)
+    assert res.p == pytest.approx(expected.p, rel=1e-12) and res.n == "5 vs 5 instances"
+    assert "per-instance" in res.method
 
 
 def test_one_instance_keeps_todays_test_bit_for_bit_and_unit_seed_keeps_the_seeds() -> None:
@@ -186,14 +221,15 @@ def test_one_instance_keeps_todays_test_bit_for_bit_and_unit_seed_keeps_the_seed
     assert (with_cols.effect, with_cols.p, with_cols.p_tost, with_cols.ci, with_cols.statistic) == (
         without.effect, without.p, without.p_tost, without.ci, without.statistic)
     assert V.evaluate(one, [c]).iloc[0].unit == "seeds of 1 instance"
-    # a run-to-run claim over several instances: every (instance, seed) pair stays a unit
+    # a claim with the seed as its unit (run-to-run, a variance) reads the scene as written only: a
+    # fresh instance's runs never enter it
     many, seed_unit = frame(4), claim(unit="seed")
     res = claim_compare.compare(many, seed_unit, seed_unit.scenes)
-    assert (res.method, res.n) == ("paired t (by scene and seed)", "12 pairs")
-    assert V.evaluate(many, [seed_unit]).iloc[0].unit == "seeds of 4 instances"
-    # other tests pool the instances' seeds as before (a variance claim: centred per instance)
+    pilot = claim_compare.compare(many[many.instance == 0], seed_unit, seed_unit.scenes)
+    assert (res.method, res.n) == ("paired t (by scene and seed)", "3 pairs") and (res.p, res.ci) == (pilot.p, pilot.ci)
+    assert V.evaluate(many, [seed_unit]).iloc[0].unit == "seeds of 1 instance"
     spread = claim(test="variance", expect="lower")
-    assert claim_compare.compare(many, spread, spread.scenes).n == "12 pairs"
+    assert claim_compare.compare(many, spread, spread.scenes).n == "3 pairs"
 
 
 def test_a_claim_over_two_scenes_splits_by_the_scene_as_written_over_instance_means() -> None:
@@ -203,12 +239,13 @@ def test_a_claim_over_two_scenes_splits_by_the_scene_as_written_over_instance_me
     assert list(per_scene) == ["studio", "drift"]
     means = df.groupby(["variant", "instance_of", "instance"]).psnr.mean().unstack("variant")
     d = means.cc - means.baseline
+    d = d[d.index.get_level_values("instance") > 0]  # the pilot instance 0 left out
     assert per_scene["studio"] == pytest.approx(d.loc["studio"].mean())
     assert np.isfinite(p_het)
-    assert claim_compare.compare(df, c, c.scenes).n == "6 instances"
-    assert IU.unit_text(df, c, c.scenes) == "6 instances of 2 scenes"
+    assert claim_compare.compare(df, c, c.scenes).n == "4 instances"
+    assert IU.unit_text(df, c, c.scenes) == "4 instances of 2 scenes, pilot instance 0 left out"
     seed_unit = claim(scenes=("studio", "drift"), unit="seed")
-    assert IU.unit_text(df, seed_unit, c.scenes) == "seeds of 6 instances of 2 scenes"
+    assert IU.unit_text(df, seed_unit, c.scenes) == "seeds of 1 instance of each of 2 scenes"
     assert IU.unit_text(frame(1, scenes=("studio", "drift")), c, c.scenes) == "seeds of 1 instance of each of 2 scenes"
 
 
@@ -230,6 +267,14 @@ def test_the_unit_and_instances_register_a_claim_only_when_they_change_its_test(
     del raw["claims"][0]["unit"]
     by_instance = registration.claim_fingerprint(raw, {}, "cc_mean")
     assert by_instance not in (first, with_seed) and json.loads(by_instance)["scenes"]["easy"]["instances"] == 3.0
+    raw["profiles"]["quick"]["scenes"][0]["instances"] = 12  # a fixed-n claim's n: another test
+    assert registration.claim_fingerprint(raw, {}, "cc_mean") != by_instance
+    # run until decided: its registered plan bounds what it reads, so more draws change nothing
+    raw["profiles"]["quick"]["sequential"] = {"first": 3}
+    planned = registration.claim_fingerprint(raw, {}, "cc_mean")
+    raw["profiles"]["quick"]["scenes"][0]["instances"] = 30
+    assert registration.claim_fingerprint(raw, {}, "cc_mean") == planned
+    assert json.loads(planned)["scenes"]["easy"]["instances"] == "several"
 
 
 # --------------------------------------------------------------------------- committed reports
@@ -242,9 +287,10 @@ def test_the_span_of_each_counted_method_claim_is_listed_from_its_runs() -> None
     df = pd.concat([frame(3), frame(1, scenes=("drift",))], ignore_index=True)
     rows = pd.DataFrame(instance_span.claim_spans("study", claims, df, Register()))
     assert list(rows.claim) == ["wide", "two", "ext"]
-    assert list(rows.instances) == [3, 1, 3]
-    assert rows.set_index("claim").per_scene["two"] == "studio: 3, drift: 1"
-    assert rows.set_index("claim").runs["wide"] == 18  # 2 arms x 3 instances x 3 seeds
+    # the tested instances: studio's fresh 1 and 2 (its pilot instance 0 left out); drift's only one
+    assert list(rows.instances) == [2, 1, 2]
+    assert rows.set_index("claim").per_scene["two"] == "studio: 2, drift: 1"
+    assert rows.set_index("claim").runs["wide"] == 12  # 2 arms x 2 fresh instances x 3 seeds
     # a run-to-run study's claims are not method claims about a kind of scene; no runs span nothing
     assert instance_span.claim_spans("secret5_cc", claims, df, Register()) == []
     bare = instance_span.claim_spans("study", claims[:1], None, Register())
@@ -260,3 +306,13 @@ def test_the_committed_reports_list_every_counted_method_claim() -> None:
     assert len(spans) and list(spans.columns) == instance_span.COLUMNS
     assert not spans.study.isin(instance_span.RUN_TO_RUN_STUDIES).any()
     assert (spans[spans.runs > 0].instances >= 1).all()
+
+
+def test_registration_is_judged_on_the_runs_the_test_reads_not_the_pilots() -> None:
+    """The pilot instance's runs came before instances existed; "registered before its runs" looks
+    at the earliest run the claim's test reads (``registration._claim_runs``)."""
+    df = frame(3)
+    read = registration._claim_runs(claim(), df)
+    assert sorted(set(read.instance)) == [1, 2] and len(read) == 12
+    assert sorted(set(registration._claim_runs(claim(unit="seed"), df).instance)) == [0]  # the seed its unit
+    assert len(registration._claim_runs(claim(), frame(1))) == 6  # no fresh instance: the pilot's runs are all

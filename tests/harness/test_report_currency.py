@@ -39,7 +39,8 @@ def _entry(fingerprint: str) -> StudyClaims:
 
 def test_the_index_opens_with_a_stale_note_only_when_its_runs_are_another_trainers() -> None:
     current = index_markdown([_entry("aaaaaaaaaaaa")], [], [], current="aaaaaaaaaaaa")
-    assert "Stale" not in current and current.splitlines()[2].startswith("Regenerate with")
+    lines = current.splitlines()
+    assert "Stale" not in current and lines[2].startswith("**Design.**") and lines[4].startswith("Regenerate with")
     page = index_markdown([_entry("aaaaaaaaaaaa")], [], [], current="bbbbbbbbbbbb",
                           todo=(456, estimate(456, 2, "AVX-512").text()))
     note = page.splitlines()[2]

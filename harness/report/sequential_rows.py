@@ -1,0 +1,95 @@
+"""The rows a study runs until decided: their verdicts come from the sequential replay, not the
+report's fixed-n Holm (issue 57; docs/sequential.md).
+
+A study whose profile has a ``sequential:`` block adds runs round by round while a claim is
+undecided (``study decide``); a fixed-n test on the runs it stopped at would read a stopping rule
+that looked at the data as if it had not (its error rate is not α). So each claim of the study's
+sequential design (``analysis.sequential_study.design``) is decided here by the same replay
+``study decide`` prints (``sequential_study.decide``: α-spending looks, one Holm-type recycling per
+family, at the claim's share of its group's α), and ``annotate`` writes that decision into the
+study's claim rows:
+
+- ``seq_verdict``: reproduced / contradicted / equivalent when a look rejected, else inconclusive
+  (still running, or stopped at its cap);
+- ``seq_alpha``: the α its family's sequential claims of this study hold (``Design.alpha``);
+- ``seq_text``: one clause for the verdict's "why" (the look, its count, the rule, or what a
+  fixed design would need at the cap);
+- ``seq_needed``: at the cap, the runs per arm a fixed design would need at its share.
+
+``verdicts.decide`` then leaves those rows out of their group's fixed-n Holm, which runs at α
+less every sequential share of the group (a Bonferroni split between the parts: the group's
+family-wise error is at most the sum), so deciding them never borrows α the other rows hold.
+A study without a sequential plan gets no columns and is decided as before.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from ftgspp.errors import InputError
+from harness.analysis import sequential as Q, sequential_study as S, verdicts as V
+from harness.spec.paper_register import Register
+from harness.spec.study_files import list_studies, load_study
+from harness.spec.study_schema import StudySpec
+
+COLUMNS = ("seq_verdict", "seq_alpha", "seq_text", "seq_needed")
+PROFILE = "quick"  # the profile the reports are made with (``make reports``)
+
+
+def sequential_profile(study: StudySpec, profile: str | None) -> str | None:
+    """The profile whose sequential plan decides the study's rows: ``profile`` (else the quick
+    one) when it has a ``sequential:`` block; None when it has none."""
+    name = profile or PROFILE
+    prof = study.profiles.get(name)
+    return name if prof is not None and prof.sequential is not None else None
+
+
+def _text(o: S.Outcome, alpha: float, spending: str) -> str:
+    """One clause: what the replay decided for this claim."""
+    c, dec = o.claim, o.decision
+    rule = f"runs until decided ({S.SPENDING_NAMES[spending]} spending, α {alpha:.3g} for this study's claims" \
+           " of the family)"
+    if dec is None:
+        return f"{rule}: no look yet (the first needs {o.needs} {c.unit})"
+    if o.status == Q.DECIDED:
+        which = " and ".join(dec.rejected)
+        return f"{rule}: the {which} test rejected at look {dec.look} ({dec.n} {c.unit}, p = {max(dec.p):.2g})" \
+            if len(dec.rejected) > 1 else \
+            f"{rule}: the {which} test rejected at look {dec.look} ({dec.n} {c.unit}," \
+            f" p = {dec.p[Q.HYPOTHESES.index(dec.rejected[0])]:.2g})"
+    if o.status == Q.CONTINUE:
+        return f"{rule}: undecided at look {dec.look} ({dec.n} {c.unit}); the next look needs {o.needs}"
+    need = (f"a fixed design at its share needs about {int(dec.runs_needed)} {c.unit}" if dec.runs_needed < 1e9
+            else "a fixed design's count cannot be estimated from these runs")
+    return f"{rule}: stopped at its cap undecided ({dec.n} {c.unit}); {need}"
+
+
+def annotate(frame: pd.DataFrame, study: StudySpec, runs: pd.DataFrame, register: Register,
+             studies_dir: Path | None = None, profile: str | None = None, spending: str = "obf") -> pd.DataFrame:
+    """``frame`` (the study's ``verdicts.evaluate`` rows) with ``COLUMNS`` for every claim of its
+    sequential design under ``profile`` (module docstring); unchanged without one. ``runs``: the
+    study's runs frame with instance columns and derived metrics."""
+    name = sequential_profile(study, profile)
+    if name is None or frame.empty:
+        return frame
+    try:
+        d = S.design(study, name, register, lambda: {n: load_study(n, studies_dir) for n in list_studies(studies_dir)})
+    except InputError:
+        return frame  # no claim of it runs until decided under this profile
+    out = frame.copy()
+    for col, empty in zip(COLUMNS, ("", float("nan"), "", float("nan"))):
+        out[col] = empty
+    for fam in S.decide(d, runs, spending):
+        alpha = d.alpha(fam.name)
+        for o in fam.outcomes:
+            rows = out.index[out.claim == o.claim.spec.id]
+            decided = o.status == Q.DECIDED and o.decision is not None
+            needed = o.decision.runs_needed if o.decision is not None and o.status == Q.AT_CAP else float("nan")
+            for i in rows:
+                out.at[i, "seq_verdict"] = o.decision.verdict if decided else V.INCONCLUSIVE
+                out.at[i, "seq_alpha"] = alpha
+                out.at[i, "seq_text"] = _text(o, alpha, spending)
+                out.at[i, "seq_needed"] = needed
+    return out
