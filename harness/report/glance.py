@@ -8,7 +8,7 @@ import math
 
 import pandas as pd
 
-from harness.analysis import verdicts as V
+from harness.analysis import stats, verdicts as V
 from harness.report.claims_table import POST_HOC, VERDICT_MARK, deciding_p, effect_text, mark_text
 from harness.report.fmt import p_text, text
 from harness.spec.paper_register import Statement
@@ -62,7 +62,10 @@ def reason(s: Statement, r: pd.Series | None) -> str:
         return r.seq_text  # decided by its study's sequential design (report.sequential_rows)
     if r.verdict == V.INCONCLUSIVE:
         tost = f", TOST p = {p_text(r.p_tost_adj)}" if not math.isnan(r.p_tost_adj) else ""
-        return f"no test rejects at the family's α (Holm p = {p_text(r.p_adj)}{tost}){beyond}"
+        alpha = r.get("alpha", stats.ALPHA)
+        at = ("the family's α" if not isinstance(alpha, float) or math.isnan(alpha) or alpha >= stats.ALPHA
+              else f"the α {alpha:.3g} the family's rows run until decided leave")
+        return f"no test rejects at {at} (Holm p = {p_text(r.p_adj)}{tost}){beyond}"
     p = p_text(deciding_p(r))
     if V.by_equivalence(r):
         return f"the equivalence test rejects (Holm TOST p = {p}): within ±SESOI{beyond}"

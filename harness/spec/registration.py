@@ -7,12 +7,12 @@ its registration fingerprint (``claim_fingerprint``) — its text, metric, test,
 ``sequential:`` block, both left out while absent, so no fingerprint of a claim without one
 changed when they were added); the definitions of its arms (their override lists in the study's
 ``variants:`` and in the quick profile's ``variants:``); and the definitions of its scenes in the
-quick profile (generator arguments, overrides, rungs and the ladders those set, and
-``instances`` when not 1 — for a claim run until decided only that it is more than 1: its
-registered cap, not the count drawn, bounds what it reads). A claim's
-``unit:`` is in it when it is not the default (``instance``) and one of the claim's scenes has
-several instances: only then does it change the test (``spec.instances``), so
-marking a run-to-run claim on one instance ``unit: seed`` does not re-register it. A key left out
+quick profile (generator arguments, overrides, rungs and the ladders those set, and, for a
+claim that takes instances — a mean, contrast or interaction claim without ``unit: seed``
+(``spec.instances.takes_instances``) — ``instances`` when not 1: the count for a fixed-n claim
+(its n), only that it is more than 1 for a claim run until decided (its registered cap, not the
+count drawn, bounds what it reads)). Any other claim reads the scenes as written only, so
+instances drawn of its scenes, or ``unit: seed`` written on it, change nothing of it. A key left out
 counts as its default, so writing a default out changes nothing; a claim without ``scenes`` or ``among`` meant
 every scene or variant of the quick profile at that version, so a scene added there widened it.
 ``history:`` notes, ``withdrawn:`` and comments are not part of it.
@@ -59,7 +59,7 @@ import yaml
 
 from harness.spec import git_repo
 from harness.spec.git_repo import repository
-from harness.spec.instances import on_scenes, tested
+from harness.spec.instances import INSTANCE_TESTS, on_scenes, tested
 from harness.spec.study_schema import ClaimSpec
 
 YES, NO, UNKNOWN = "yes", "no", "unknown"
@@ -177,21 +177,22 @@ def claim_fingerprint(study: Any, sets: Any, claim_id: str) -> str | None:
     profiles = study.get("profiles") if isinstance(study.get("profiles"), dict) else {}
     sequential = {str(n): _set(p.get("sequential")) for n, p in profiles.items()
                   if body["test"] == "mean" and isinstance(p, dict) and _set(p.get("sequential"))}
+    takes = body["test"] in INSTANCE_TESTS and claim.get("unit") in (None, UNIT_DEFAULT)  # spec.instances
     by_name = {s.get("name"): s for s in scenes}
     ladders = quick.get("ladders") if isinstance(quick.get("ladders"), dict) else {}
     scene_defs = {}
     for name in body["scenes"] or []:
         scene = by_name.get(name, {})
         rungs = scene.get("rungs") if isinstance(scene.get("rungs"), dict) else {}
-        # fresh instances change the test (the instance becomes its unit, the pilot is left out); their
-        # count is a fixed-n claim's n, while a claim run until decided reads its first n up to its
-        # registered cap, whatever the count drawn (instance i is the same draw for any count)
+        # fresh instances change the test of a claim that takes them (the instance becomes its unit,
+        # the pilot is left out); their count is a fixed-n claim's n, while a claim run until decided
+        # reads its first n up to its registered cap, whatever the count drawn (instance i is the same
+        # draw for any count). A claim that does not take them reads the pilot only: nothing changes
         count = scene.get("instances")
-        several = {"instances": "several" if sequential else count} if count not in (None, 1) else {}
+        several = ({"instances": "several" if sequential else count}
+                   if count not in (None, 1) and takes else {})
         scene_defs[str(name)] = {**{k: scene.get(k) for k in SCENE_KEYS},
                                  "ladders": {str(lad): ladders.get(lad) for lad in rungs}, **several}
-    if claim.get("unit") not in (None, UNIT_DEFAULT) and any("instances" in d for d in scene_defs.values()):
-        body["unit"] = claim["unit"]
     arms = {v: {"study": study_variants.get(v), "quick": None if quick_variants is None else quick_variants.get(v)}
             for v in _arms(body)}
     return json.dumps(_canonical({"claim": body, "arms": arms, "scenes": scene_defs}

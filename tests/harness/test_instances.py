@@ -261,12 +261,17 @@ def test_the_unit_and_instances_register_a_claim_only_when_they_change_its_test(
     assert registration.claim_fingerprint(raw, {}, "cc_mean") == first
     raw["profiles"]["quick"]["scenes"][0]["instances"] = 1
     assert registration.claim_fingerprint(raw, {}, "cc_mean") == first
-    raw["profiles"]["quick"]["scenes"][0]["instances"] = 3  # the claim now spans three instances
-    with_seed = registration.claim_fingerprint(raw, {}, "cc_mean")
-    assert with_seed != first and json.loads(with_seed)["claim"]["unit"] == "seed"
-    del raw["claims"][0]["unit"]
+    raw["profiles"]["quick"]["scenes"][0]["instances"] = 3
+    # a claim with the seed as its unit reads the scene as written only: the draws change nothing of it
+    assert registration.claim_fingerprint(raw, {}, "cc_mean") == first
+    del raw["claims"][0]["unit"]  # now it takes the instance as its unit: another test, re-registered
     by_instance = registration.claim_fingerprint(raw, {}, "cc_mean")
-    assert by_instance not in (first, with_seed) and json.loads(by_instance)["scenes"]["easy"]["instances"] == 3.0
+    assert by_instance != first and json.loads(by_instance)["scenes"]["easy"]["instances"] == 3.0
+    spread = dict(raw["claims"][0], id="spread", test="variance", expect="lower")  # never takes instances
+    raw["claims"].append(spread)
+    no_draws = copy.deepcopy(raw)
+    no_draws["profiles"]["quick"]["scenes"][0]["instances"] = 1
+    assert registration.claim_fingerprint(raw, {}, "spread") == registration.claim_fingerprint(no_draws, {}, "spread")
     raw["profiles"]["quick"]["scenes"][0]["instances"] = 12  # a fixed-n claim's n: another test
     assert registration.claim_fingerprint(raw, {}, "cc_mean") != by_instance
     # run until decided: its registered plan bounds what it reads, so more draws change nothing

@@ -99,3 +99,12 @@ def test_the_index_names_the_design_once_from_the_study_files(tmp_path) -> None:
     del raw["profiles"]["quick"]["sequential"]
     (tmp_path / "seq.yaml").write_text(yaml.safe_dump(raw))
     assert design_paragraph(tmp_path) == []
+
+
+def test_an_undecided_fixed_n_row_says_the_alpha_it_was_tested_at() -> None:
+    from harness.report.glance import reason
+
+    row = pd.Series({"verdict": V.INCONCLUSIVE, "p_adj": 0.04, "p_tost_adj": math.nan, "alpha": 0.024,
+                     "interval_note": "", "counted": True})
+    assert "at the α 0.024 the family's rows run until decided leave (Holm p = 0.04)" in reason(_statement(), row)
+    assert "at the family's α (Holm" in reason(_statement(), row.copy().replace({0.024: stats.ALPHA}))
