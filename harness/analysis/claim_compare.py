@@ -24,6 +24,10 @@ def compare(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> Resu
     reads the scenes as written (instance 0) only (``spec.instances.tested``)."""
     df = df if takes_instances(claim) else tested(df, claim)  # the seed its unit: the scenes as written
     if instance_unit.by_instance(df, claim, scenes):
+        waiting, drawn = instance_unit.pending(df, claim, scenes)
+        if waiting:
+            raise ValueError(f"{drawn - waiting} of the {drawn} runs of its arms on fresh instances have run: the"
+                             " instance-level test reads every drawn instance, so it waits for the rest")
         if claim.test == "mean":
             return instance_unit.claim_test(df, claim, scenes)
         res = compare(instance_unit.units(df, claim, scenes), claim, scenes)  # no instance columns: by seed

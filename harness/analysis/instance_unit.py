@@ -37,7 +37,7 @@ import pandas as pd
 from scipy import stats as sps
 
 from harness.analysis import claim_tests
-from harness.spec.instances import PILOT, takes_instances, tested
+from harness.spec.instances import PILOT, on_scenes, takes_instances, tested
 from harness.spec.study_schema import ClaimSpec, Pairing, plural
 
 UNIT = ["scene", "instance"]
@@ -133,9 +133,9 @@ def claim_runs(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> p
 
 
 def tested_runs(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> pd.DataFrame:
-    """``claim_runs`` as the claim's test reads them: the pilot instances left out once a fresh
-    instance ran (``spec.instances.tested``)."""
-    return tested(claim_runs(df, claim, scenes), claim)
+    """``claim_runs`` as the claim's test reads them (``spec.instances.tested``, decided on every
+    row of ``df``, planned ones too: a drawn scene's pilot is left out before its fresh runs end)."""
+    return claim_runs(tested(df, claim), claim, scenes)
 
 
 def instances_spanned(runs: pd.DataFrame) -> pd.Series:
@@ -145,11 +145,25 @@ def instances_spanned(runs: pd.DataFrame) -> pd.Series:
     return runs.groupby("instance_of", sort=False)["instance"].nunique()
 
 
+def pending(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> tuple[int, int]:
+    """(planned runs of the claim's arms on the fresh instances of its scenes that have not run
+    yet — MISSING or RUNNING; a FAILED run has run and drops out —, all of them): a test with the
+    instance as its unit reads every drawn instance, so it waits for the last one rather than
+    take whichever have finished (its n is the count registered, not the count so far)."""
+    if "instance" not in df or "status" not in df:
+        return 0, 0
+    rows = df[on_scenes(df, scenes) & (df.instance > PILOT)]
+    rows = rows[rows.variant.isin(claim.arms())] if claim.arms() else rows
+    return int(rows.status.isin(["MISSING", "RUNNING"]).sum()), len(rows)
+
+
 def by_instance(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> bool:
     """Is ``claim`` tested with the instance as its unit? A mean, contrast or interaction claim
-    (not ``unit: seed``) with runs on a fresh instance of one of its scenes."""
+    (not ``unit: seed``) one of whose scenes has fresh instances in ``df`` (planned or run)."""
     if not takes_instances(claim):
         return False
+    if "instance" in df and (df[on_scenes(df, scenes)].instance > PILOT).any():  # drawn, run or not
+        return True
     return bool((claim_runs(df, claim, scenes).instance > PILOT).any())
 
 
@@ -179,11 +193,11 @@ def unit_text(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> st
     run-to-run claim over several instances)."""
     ran = claim_runs(df, claim, scenes)
     if by_instance(df, claim, scenes):
-        spanned = instances_spanned(tested(ran, claim))
+        spanned = instances_spanned(tested_runs(df, claim, scenes))
         k, n = int(spanned.sum()), len(spanned)
         pilot = ", pilot instance 0 left out" if (ran.instance == PILOT).any() else ""
         return plural(k, "instance") + (f" of {n} scenes" if n > 1 else "") + pilot
-    spanned = instances_spanned(tested(ran, claim))
+    spanned = instances_spanned(tested_runs(df, claim, scenes))
     k, n = int(spanned.sum()), len(spanned)
     if not k:
         return ""

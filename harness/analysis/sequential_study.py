@@ -49,6 +49,11 @@ PLAN_KEYS = ("first", "per_round", "rounds", "cap_runs", "cap_cpu_hours")
 SPENDING_NAMES = {"obf": "O'Brien–Fleming", "pocock": "Pocock"}
 
 
+class DesignError(InputError):
+    """A sequential design the study file cannot run (an impossible plan, a cap above the instances
+    drawn), as against a study without one."""
+
+
 @dataclass(frozen=True)
 class SeqClaim:
     """A counted mean claim run until decided under one profile."""
@@ -218,9 +223,9 @@ def design(study: StudySpec, profile: str, register: Register,
         try:
             claim = SeqClaim(c, plan_of(c, prof), study.base_seed, fresh_instances(c, prof))
         except ValueError as err:
-            raise InputError(f"{where}: claim {c.id}", f"impossible plan ({err})") from None
+            raise DesignError(f"{where}: claim {c.id}", f"impossible plan ({err})") from None
         if claim.fresh and claim.plan.n_max > claim.fresh * len(c.scenes):
-            raise InputError(f"{where}: claim {c.id}", f"its cap is {claim.plan.n_max} {claim.unit}, but the"
+            raise DesignError(f"{where}: claim {c.id}", f"its cap is {claim.plan.n_max} {claim.unit}, but the"
                                                        f" {prof.name} profile draws {claim.fresh} fresh instances of"
                                                        f" each of its {len(c.scenes)} scene(s): raise `instances:`"
                                                        " or lower the cap")

@@ -136,8 +136,9 @@ def _tested(row: dict, df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ..
 
 
 def evaluate(df: pd.DataFrame, claims: tuple[ClaimSpec, ...] | list[ClaimSpec], study: str = "",
-             register: Register | None = None) -> pd.DataFrame:
-    """One row per hypothesis (``COLUMNS``) with raw p-values; verdicts need ``decide``."""
+             register: Register | None = None, pooled: frozenset[str] = frozenset()) -> pd.DataFrame:
+    """One row per hypothesis (``COLUMNS``) with raw p-values; verdicts need ``decide``. A claim
+    in ``pooled`` (one run until decided: one decision over its scenes) is never split by scene."""
     rows = []
     for c in claims:
         why = C.missing(df, c)
@@ -147,7 +148,7 @@ def evaluate(df: pd.DataFrame, claims: tuple[ClaimSpec, ...] | list[ClaimSpec], 
             continue
         p_het, per_scene = claim_compare.scene_split(df, c)
         signs = {np.sign(v) for v in per_scene.values() if v != 0}
-        if p_het < stats.ALPHA and len(signs) > 1:  # the scenes disagree: never pooled over opposite signs
+        if p_het < stats.ALPHA and len(signs) > 1 and c.id not in pooled:  # never pooled over opposite signs
             for scene in per_scene:
                 row = _row(c, scene, f"scene-dependent (heterogeneity p = {p_het:.2g})", study, register)
                 rows.append({**_tested(row, df, c, (scene,)), "p_het": p_het})
@@ -211,7 +212,8 @@ def by_equivalence(row: pd.Series) -> bool:
     """Did the equivalence test decide the row (an equivalent row, or one reproduced by
     equivalence: a "≈" claim, or a ``not_higher`` / ``not_lower`` claim within ±SESOI)?"""
     return row.verdict == EQUIVALENT or (row.verdict == REPRODUCED and (
-        row.expect == "equivalent" or (row.expect in ("not_higher", "not_lower") and row.p_tost_adj < stats.ALPHA)))
+        row.expect == "equivalent" or (row.expect in ("not_higher", "not_lower")
+                                       and row.p_tost_adj < row.get("alpha", stats.ALPHA))))
 
 
 def adjusted_level(row: pd.Series, level_d: float, level_e: float, stop: float) -> float:

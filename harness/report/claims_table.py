@@ -70,7 +70,9 @@ def needed_text(row: pd.Series) -> str:
     """Runs per arm (pairs for paired tests) for 80% power at the SESOI and the claim's α; inconclusive rows only."""
     if row.verdict != V.INCONCLUSIVE or not isinstance(row.n_needed, float) or math.isnan(row.n_needed):
         return ""
-    at = (f"α/{int(row.family_size)}" if isinstance(row.family_size, float) and row.family_size > 1 else "α") + \
+    alpha = row.get("alpha", stats.ALPHA)
+    a = "α" if not isinstance(alpha, float) or math.isnan(alpha) or alpha >= stats.ALPHA else f"{alpha:.3g}"
+    at = (f"{a}/{int(row.family_size)}" if isinstance(row.family_size, float) and row.family_size > 1 else a) + \
         ", the SD of these runs"
     if math.isinf(row.n_needed):
         return f"more than {stats.N_MAX} runs/arm for 80% power at the SESOI ({at})"

@@ -57,3 +57,19 @@ def design_paragraph(studies_dir: Path | None = None, profile: str = PROFILE) ->
                      "of their family's α; `study decide`), every other row is decided at fixed n by one "
                      "Holm procedure per family over every study at the α the sequential rows leave")
     return [f"**Design.** {'. '.join(p[0].upper() + p[1:] for p in parts)} (docs/sequential.md).", ""]
+
+
+def family_text(rows) -> str:
+    """One group's family line from its counted rows (``verdicts.decide`` output): its fixed-n
+    Holm's text, and how many rows run until decided with the α they hold; "" when none."""
+    if not len(rows):
+        return ""
+    seq = rows.seq_verdict.astype(object).fillna("").astype(str) != "" if "seq_verdict" in rows else None
+    fixed = rows[~seq] if seq is not None else rows
+    text = next((f for f in fixed.family if f), "")
+    if seq is None or not seq.any():
+        return text
+    held = rows[seq].groupby("study").seq_alpha.first() if "study" in rows else rows[seq].seq_alpha.iloc[:1]
+    part = (f"{int(seq.sum())} rows of {_studies(len(held))} run until decided, holding α {float(held.sum()):.3g}"
+            " (docs/sequential.md)")
+    return f"{text}; {part}" if text else part

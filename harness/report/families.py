@@ -60,9 +60,10 @@ def store_claims(name: str, register: Register, studies_dir: Path | None = None,
     if n_done == 0:
         return None
     runs = add_differences(data.df)
-    frame = with_registration(V.evaluate(runs, data.study.claims, name, register), data.df,
-                              data.study.claims, name, studies_dir)
-    frame = sequential_rows.annotate(frame, data.study, runs, register, studies_dir, profile)
+    design = sequential_rows.design_of(data.study, register, studies_dir, profile)
+    frame = with_registration(V.evaluate(runs, data.study.claims, name, register, sequential_rows.claim_ids(design)),
+                              data.df, data.study.claims, name, studies_dir)
+    frame = sequential_rows.annotate(frame, design, runs)
     return StudyClaims(name, data.study.question, frame, (Path(name) / "index.md").as_posix(), n_done,
                        ", ".join(data.code_versions()), tuple(data.trainer_fingerprints()))
 
@@ -83,8 +84,10 @@ def report_claims(name: str, root: Path, register: Register, studies_dir: Path |
     study = load_study(name, studies_dir)
     df = instance_columns(df, study)  # from the study's scenes: a runs.csv may predate the columns
     runs = add_differences(df)
-    frame = with_registration(V.evaluate(runs, study.claims, name, register), df, study.claims, name, studies_dir)
-    frame = sequential_rows.annotate(frame, study, runs, register, studies_dir)
+    design = sequential_rows.design_of(study, register, studies_dir)
+    frame = with_registration(V.evaluate(runs, study.claims, name, register, sequential_rows.claim_ids(design)),
+                              df, study.claims, name, studies_dir)
+    frame = sequential_rows.annotate(frame, design, runs)
     return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),
                        n_done, code, tuple(trainer_fingerprints(df)), source="committed report")
 

@@ -47,7 +47,7 @@ from harness.report.claims_table import (
     verdict_text,
 )
 from harness.report.currency import plan_frame, stale_note
-from harness.report.design_note import design_paragraph
+from harness.report.design_note import design_paragraph, family_text
 from harness.report.families import StudyClaims, decide_all, family_verdicts, forget
 from harness.report.findings import write_findings
 from harness.report.fmt import text
@@ -207,7 +207,7 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     lines += ["## Families", ""]
     for group, what in CLAIM_GROUPS.items():
         sub = allf[(allf.group == group) & allf.counted.astype(bool)] if len(allf) else allf
-        fam = next((f for f in sub.family if f), "")
+        fam = family_text(sub)
         statements = [s for s in register.statements if s.family == group]
         if group in STATEMENT_FAMILIES and statements:
             tally = statement_tally(statements, rows)

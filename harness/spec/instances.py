@@ -110,8 +110,11 @@ def takes_instances(claim: ClaimSpec) -> bool:
 
 
 def fresh(runs: pd.DataFrame) -> pd.Series:
-    """Which rows are on a fresh instance: every row of a scene without other instances among
-    ``runs``, and no row of the pilot (instance 0) of a scene that has them."""
+    """Which rows are on a fresh instance: every row of a scene drawn once, and no row of the
+    pilot (instance 0) of a scene drawn several times. A scene counts as drawn several times when
+    any row of ``runs`` — planned and not yet run ones too (a runs frame lists every planned run)
+    — is on a fresh instance of it, so what a test leaves out never depends on which runs have
+    finished."""
     if "instance_of" not in runs or runs.empty:
         return pd.Series(True, index=runs.index)
     several = runs.groupby("instance_of", sort=False).instance.transform("max") > PILOT
@@ -119,13 +122,39 @@ def fresh(runs: pd.DataFrame) -> pd.Series:
 
 
 def tested(runs: pd.DataFrame, claim: ClaimSpec) -> pd.DataFrame:
-    """The runs of ``runs`` the claim's test reads (module docstring): for a claim that takes
-    instances, without the pilot instance of a scene that has fresh ones among them; for any
-    other claim (the seed its unit: a spread, a variance, an existential search, ``unit: seed``),
-    the scenes as written only — repeated runs of one fixed scene, never a fresh instance's
-    single run."""
+    """The rows of ``runs`` (a runs frame: every planned run, any status) the claim's test reads
+    (module docstring): for a claim that takes instances, none of the pilot of a scene drawn
+    several times (``fresh``); for any other claim (the seed its unit: a spread, a variance, an
+    existential search, ``unit: seed``), the scenes as written only — repeated runs of one fixed
+    scene, never a fresh instance's single run."""
     if "instance" not in runs:
         return runs
     if not takes_instances(claim):
         return runs[runs.instance == PILOT]
     return runs[fresh(runs)] if (runs.instance > PILOT).any() else runs
+
+
+def mixed_scenes(claim: ClaimSpec, scenes: list[StudyScene]) -> list[str]:
+    """The claim's scenes drawn once when another of its scenes is drawn several times, for a
+    claim that takes instances (its units would mix one pilot's seeds with fresh instances):
+    ``[]`` when the claim is consistent. ``scenes``: one profile's expanded scenes."""
+    if not takes_instances(claim):
+        return []
+    drawn = {s.base for s in scenes if s.base in claim.scenes and s.instance > PILOT}
+    present = {s.base for s in scenes}
+    once = [n for n in claim.scenes if n in present and n not in drawn]
+    return once if drawn and once else []
+
+
+def check_claims(claims: tuple[ClaimSpec, ...], profiles: dict, where: str) -> tuple[ClaimSpec, ...]:
+    """``claims`` when no claim that takes instances mixes, under some profile, a scene drawn
+    several times with one drawn once (``mixed_scenes``); else one ``InputError``."""
+    for c in claims:
+        for name, prof in profiles.items():
+            once = mixed_scenes(c, list(prof.scenes))
+            if once and not c.withdrawn:
+                raise InputError(f"{where}: claims.{c.id}.scenes", f"profile {name} draws some of its scenes as"
+                                 f" several instances but not {', '.join(once)}: its instance-level test would mix a"
+                                 " pilot's seeds with fresh instances; give those scenes `instances:` too, or say"
+                                 " `unit: seed` (it then reads the scenes as written)")
+    return claims

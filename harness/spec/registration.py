@@ -310,11 +310,12 @@ def _claim_runs(claim: ClaimSpec, runs: pd.DataFrame) -> pd.DataFrame:
     pilot instance 0 left out once fresh instances ran: ``spec.instances.tested``)."""
     if runs.empty or "status" not in runs:
         return runs.iloc[0:0]
+    runs = tested(runs, claim)  # on every row, planned ones too (spec.instances.fresh)
     ok = runs[runs.status == "FINISHED"]
     arms = claim.arms()
     if arms:
         ok = ok[ok.variant.isin(arms)]
-    return tested(ok[on_scenes(ok, claim.scenes)] if claim.scenes else ok, claim)
+    return ok[on_scenes(ok, claim.scenes)] if claim.scenes else ok
 
 
 def _short(commit: str) -> str:

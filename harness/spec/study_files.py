@@ -175,10 +175,10 @@ def _resolve(f: StudySpec, path: Path) -> StudySpec:
         require(p.baseline in p.variants, f"{where}: baseline", f"'{p.baseline}' is not a variant of {p.name}")
     all_variants = {v for p in profiles.values() for v in p.variants}
     all_scenes = {sc.base for p in profiles.values() for sc in p.scenes}  # a claim names a scene as written
+    claims = instances.check_claims(_claims(f.claims, f"{where}: claims", all_variants, all_scenes), profiles, where)
     return dataclasses.replace(
         f, question=" ".join(f.question.split()), notes=" ".join(f.notes.split()), path=path, profiles=profiles,
-        variants=variants, claims=_claims(f.claims, f"{where}: claims", all_variants, all_scenes),
-        variance=_variance(f.variance, f"{where}: variance_components", all_variants))
+        variants=variants, claims=claims, variance=_variance(f.variance, f"{where}: variance_components", all_variants))
 
 
 def _name(value: str, where: str, what: str) -> None:

@@ -321,3 +321,33 @@ def test_registration_is_judged_on_the_runs_the_test_reads_not_the_pilots() -> N
     assert sorted(set(read.instance)) == [1, 2] and len(read) == 12
     assert sorted(set(registration._claim_runs(claim(unit="seed"), df).instance)) == [0]  # the seed its unit
     assert len(registration._claim_runs(claim(), frame(1))) == 6  # no fresh instance: the pilot's runs are all
+
+
+def test_an_instance_level_test_waits_for_every_drawn_instance_and_drops_the_pilot_from_the_start() -> None:
+    """Its n is the count drawn (registered), not the count finished so far; and the pilot is left
+    out as soon as the scene is drawn several times, not when a fresh run happens to finish."""
+    df = frame(5)
+    c = claim(test="contrast", contrasts=((("cc", 1.0), ("baseline", -1.0)),), a="", b="")
+    late = df.copy()
+    late.loc[late.instance == 4, ["status", "psnr"]] = ["MISSING", np.nan]  # instance 4 not run yet
+    with pytest.raises(ValueError, match="18 of the 24 runs of its arms on fresh instances have run"):
+        claim_compare.compare(late, c, c.scenes)
+    assert V.evaluate(late, [c]).iloc[0].verdict == V.NOT_TESTED
+    late.loc[late.instance == 4, "status"] = "FAILED"  # a failed run has run: the instance drops out
+    assert claim_compare.compare(late, c, c.scenes).n == "3 instances"
+    # nothing fresh has finished: still no test on the pilot's seeds
+    early = df.assign(status=np.where(df.instance > 0, "MISSING", "FINISHED"))
+    with pytest.raises(ValueError, match="0 of the 24"):
+        claim_compare.compare(early, claim(), ("studio",))
+
+
+def test_a_claim_mixing_drawn_and_undrawn_scenes_is_refused_with_one_line() -> None:
+    raw = mini(3)
+    raw["profiles"]["quick"]["scenes"].append({"name": "plain", "synth": {"preset": "studio", "seed": 9},
+                                              "variants": ["baseline", "cc"]})
+    raw["claims"][0]["scenes"] = ["easy", "plain"]
+    with pytest.raises(InputError, match=r"claims\.cc_mean\.scenes: profile quick draws .* but not plain") as err:
+        parse_study(copy.deepcopy(raw), Path("mini.yaml"))
+    assert "\n" not in str(err.value)
+    raw["claims"][0]["unit"] = "seed"  # reads the scenes as written: consistent
+    assert parse_study(raw, Path("mini.yaml")).claims[0].unit == "seed"

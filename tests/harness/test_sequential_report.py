@@ -21,18 +21,20 @@ from harness.spec.study_files import list_studies, load_study
 from harness.spec.study_schema import ClaimSpec
 
 
-def _rows(df: pd.DataFrame, raw: dict = SEQ_STUDY) -> tuple[pd.DataFrame, S.Design]:
-    """The study's evaluated rows annotated as the report does (its group's α shared with every
-    study file of the project, as ``study decide`` shares it), and the design it used."""
+def _rows(df: pd.DataFrame, raw: dict = SEQ_STUDY) -> tuple[pd.DataFrame, S.Design | None]:
+    """The study's evaluated rows annotated as the report does (``report.families``: its group's α
+    shared with every study file of the project, as ``study decide`` shares it), and the design."""
     study = _study(raw)
-    frame = V.evaluate(df, study.claims, "seq", Register())
-    every = {n: load_study(n) for n in list_studies()}
-    return sequential_rows.annotate(frame, study, df, Register()), S.design(study, "quick", Register(), lambda: every)
+    d = sequential_rows.design_of(study, Register())
+    frame = V.evaluate(df, study.claims, "seq", Register(), sequential_rows.claim_ids(d))
+    return sequential_rows.annotate(frame, d, df), d
 
 
 def test_the_rows_of_a_sequential_design_take_the_replays_verdict() -> None:
     df = _frame({"base": 9, "cc": 9, "gate": 9, "free": 9})
     frame, d = _rows(df)
+    every = {n: load_study(n) for n in list_studies()}
+    assert d.shares == S.design(_study(), "quick", Register(), lambda: every).shares  # study decide's shares
     replay = {o.claim.spec.id: o for f in S.decide(d, df) for o in f.outcomes}
     assert set(frame.claim[frame.seq_verdict != ""]) == set(replay) == {"cc_mean", "gate_mean", "free_welch"}
     decided = V.decide(frame)
@@ -42,11 +44,45 @@ def test_the_rows_of_a_sequential_design_take_the_replays_verdict() -> None:
         assert row.verdict == want and math.isnan(row.p_adj)
         assert row.seq_alpha == pytest.approx(d.alpha(str(row.group)))
         assert "run until decided" in row.family and glance.reason(_statement(), row) == row.seq_text
-    # a study without a sequential block: no columns, the fixed-n decision as before
+        # its effect and interval are those of the look that decided it (or its last), not of every run
+        n = o.decision.n
+        a = o.runs.a[:n]
+        effect = a.mean() if o.runs.b is None else a.mean() - o.runs.b[:n].mean()
+        assert row.effect == pytest.approx(effect) and row.n.startswith(f"{n} ") and row.ci_adj_level == 0.95
+    # a study without a sequential block: no design, no columns, the fixed-n decision as before
     plain = copy.deepcopy(SEQ_STUDY)
     del plain["profiles"]["quick"]["sequential"]
+    assert sequential_rows.design_of(_study(plain), Register()) is None
     rows = V.evaluate(df, _study(plain).claims, "seq", Register())
-    assert "seq_verdict" not in sequential_rows.annotate(rows, _study(plain), df, Register())
+    assert "seq_verdict" not in sequential_rows.annotate(rows, None, df)
+
+
+def test_a_design_the_study_cannot_run_is_an_error_not_a_silent_fixed_n() -> None:
+    from test_decide import _instances_study
+
+    with pytest.raises(S.DesignError, match="fresh instances"):
+        sequential_rows.design_of(_study(_instances_study(6)), Register())
+
+
+def test_on_instances_the_report_reads_the_fresh_ones_and_never_splits_a_sequential_claim() -> None:
+    from test_decide import _instance_frame, _instances_study
+
+    raw = _instances_study(10)
+    df = _instance_frame(5)
+    frame, d = _rows(df, raw)
+    (row,) = [r for _, r in V.decide(frame).iterrows() if r.id == "cc_mean"]
+    calm = df.assign(psnr=df.psnr.where(df.instance > 0, 30.0))  # the pilot's +9 dB changes nothing
+    (again,) = [r for _, r in V.decide(_rows(calm, raw)[0]).iterrows() if r.id == "cc_mean"]
+    assert (row.verdict, row.effect, row.seq_text) == (again.verdict, again.effect, again.seq_text)
+    assert row.n == "5 paired instances"
+    # a claim over two scenes whose scenes disagree is split when fixed-n, never when run until decided
+    two = copy.deepcopy(SEQ_STUDY)
+    runs = _frame({"base": 9, "cc": 9, "gate": 9, "free": 9})
+    runs.loc[(runs.variant == "gate") & (runs.scene == "drift"), "psnr"] -= 6.0
+    runs.loc[(runs.variant == "gate") & (runs.scene == "studio"), "psnr"] += 6.0
+    assert len(V.evaluate(runs, _study(two).claims).query("claim == 'gate_mean'")) == 2  # split by scene
+    frame, _ = _rows(runs, two)
+    assert list(frame.query("claim == 'gate_mean'").id) == ["gate_mean"]
 
 
 def _statement():
@@ -108,3 +144,15 @@ def test_an_undecided_fixed_n_row_says_the_alpha_it_was_tested_at() -> None:
                      "interval_note": "", "counted": True})
     assert "at the α 0.024 the family's rows run until decided leave (Holm p = 0.04)" in reason(_statement(), row)
     assert "at the family's α (Holm" in reason(_statement(), row.copy().replace({0.024: stats.ALPHA}))
+
+
+def test_the_families_line_names_the_fixed_n_holm_and_the_share_the_sequential_rows_hold() -> None:
+    from harness.report.design_note import family_text
+
+    df = _frame({"base": 9, "cc": 9, "gate": 9, "free": 9})
+    frame, d = _rows(df)
+    decided = V.decide(frame.assign(study="seq"))
+    paper = decided[(decided.group == "paper") & decided.counted.astype(bool)]
+    text = family_text(paper)
+    assert f"2 rows of 1 study run until decided, holding α {d.alpha('paper'):.3g}" in text
+    assert family_text(paper.iloc[0:0]) == ""
