@@ -137,8 +137,9 @@ def _continuing(d: S.Design, o: S.Outcome, done: set) -> str:
     head = f"continue: look {(o.decision.look if o.decision else 0) + 1} needs {o.needs} {c.unit}"
     if not missing:
         return head + ", which it has (its family's next round waits for its other claims)"
+    scenes = dict.fromkeys(s for _, s, _ in missing) if c.fresh else c.scenes(o.needs)  # the instances it lacks
     return (head + f"; add {plural(len(missing), 'run')} ({', '.join(c.spec.arms())} on"
-            f" {', '.join(c.scenes(o.needs))}, --seeds {c.seeds(o.needs)}), {_hours(d, len(missing))}")
+            f" {', '.join(scenes)}, --seeds {c.seeds(o.needs)}), {_hours(d, len(missing))}")
 
 
 def _at_cap(d: S.Design, o: S.Outcome) -> str:
