@@ -28,6 +28,9 @@ from harness.tracking.records import RunRecord, latest_invocation, load_runs, op
 from harness.tracking.store import Store
 
 
+FRESH = "@fresh"  # the column of a scene's fresh instances (``ReportData.shown``); ``@`` is never in a written name
+
+
 @dataclass
 class ReportData:
     """Everything a report is made from."""
@@ -49,8 +52,13 @@ class ReportData:
         return self.study.profile(self.sel.profile).baseline
 
     def labels(self) -> dict[str, str]:
-        """Scene name -> column title (``average`` -> "Average")."""
+        """Scene name -> column title (``average`` -> "Average"; a scene's fresh instances shown
+        together, ``shown``: "studio, 10 fresh instances")."""
         labels = {p.spec.scene.name: p.spec.scene.title for p in self.planned}
+        if "instance" in self.df:
+            fresh = self.df[self.df.instance > 0]
+            for base, k in fresh.groupby("instance_of", sort=False).instance.nunique().items():
+                labels[f"{base}{FRESH}"] = f"{labels.get(base, base)}, {k} fresh instances"
         labels[AVERAGE] = "Average"
         return labels
 
@@ -59,6 +67,21 @@ class ReportData:
         prof = self.study.profile(self.sel.profile)
         variants = [v for v in prof.variants if v in set(self.df.variant)]
         return variants, list(dict.fromkeys(self.df.scene))
+
+    def shown(self) -> pd.DataFrame:
+        """The runs as the study page's tables and plots show them: the fresh instances of a scene
+        (``spec.instances``: one run each) as one column, ``<scene>@fresh``, whose spread is the
+        instances', beside the scene as written (the pilot's seeds). ``df`` itself when the study
+        draws no instances."""
+        if "instance" not in self.df or not (self.df.instance > 0).any():
+            return self.df
+        fresh = self.df.instance > 0
+        return self.df.assign(scene=self.df.scene.where(~fresh, self.df.instance_of.astype(str) + FRESH))
+
+    def shown_order(self) -> tuple[list[str], list[str]]:
+        """``order`` of ``shown``: each scene as written, then its fresh instances' column."""
+        variants, _ = self.order()
+        return variants, list(dict.fromkeys(self.shown().scene))
 
     def trainer_fingerprints(self) -> list[str]:
         """The trainer fingerprints recorded by the finished runs ("unrecorded" for older runs)."""

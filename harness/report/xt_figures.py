@@ -128,6 +128,8 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
     ok = data.df[data.df.status == "FINISHED"]
     for scene in scenes:
         here = ok[ok.scene == scene]
+        if "instance" in here and (here.instance > 0).any():
+            continue  # a fresh instance (one run): the slices show the scenes as written
         seeds = sorted({int(s) for s in here.seed})[:MAX_SEEDS]
         shown = [v for v in variants if (here.variant == v).any()]
         if not seeds or not shown:

@@ -351,3 +351,26 @@ def test_a_claim_mixing_drawn_and_undrawn_scenes_is_refused_with_one_line() -> N
     assert "\n" not in str(err.value)
     raw["claims"][0]["unit"] = "seed"  # reads the scenes as written: consistent
     assert parse_study(raw, Path("mini.yaml")).claims[0].unit == "seed"
+
+
+def test_the_study_page_shows_a_scenes_fresh_instances_as_one_column_beside_the_pilot() -> None:
+    from harness.report import sections
+    from harness.report.results import FRESH, ReportData
+
+    study = parse_study(mini(4), Path("mini.yaml"))
+    df = frame(4).assign(scene=lambda d: d.scene.str.replace("studio", "easy"),
+                         instance_of="easy")[["variant", "scene", "instance_of", "instance", "seed", "status", "psnr"]]
+    df = df.assign(failure="", error="", diverged=False, wall_seconds=1.0, run_id="r")
+    data = ReportData(study, Selection(), [], df, "", "", [], None)
+    assert list(dict.fromkeys(data.shown().scene)) == ["easy", f"easy{FRESH}"]
+    assert data.labels()[f"easy{FRESH}"] == "easy, 3 fresh instances"
+    tabs, summaries = sections.build_tables(data)
+    assert tabs[0].columns[:2] == ["easy", "easy, 3 fresh instances"]
+    # the fresh column's mean is the mean over the fresh instances' runs, its n their count of runs
+    cc = summaries["psnr"].set_index(["variant", "scene"]).loc[("cc", f"easy{FRESH}")]
+    want = df[(df.variant == "cc") & (df.instance > 0)].psnr
+    assert cc["mean"] == pytest.approx(want.mean()) and int(cc["n"]) == len(want)
+    plain = ReportData(study, Selection(), [], df[df.instance == 0], "", "", [], None)
+    assert plain.shown() is plain.df  # no fresh instances: the page as before
+    page = sections.tables_section(data)
+    assert "easy, 3 fresh instances" in str(page) and "one run each" in str(page)
