@@ -12,7 +12,8 @@ The expected time is the one the README's table and a stale report's first lines
 quick runs an hour measured for this machine's vector ISA, ``--jobs`` at a time (2, as
 ``make reports`` runs them), times the studies' mix (``harness.spec.throughput``); or
 ``--seconds-per-run`` wall seconds a run, one at a time, when given. Reads the store only;
-prints one line per study and the total, and with ``--todo`` writes the names of the studies
+prints one line per study, one per study whose mean claims run until decided (its rounds and
+worst case: ``sequential_lines``) and the total, and with ``--todo`` writes the names of the studies
 that have runs to do into FILE (one per line), so that ``make reports`` starts no
 ``study run`` for a complete study.
 """
@@ -35,6 +36,27 @@ def seconds(runs: int, jobs: int, seconds_per_run: float | None = None) -> tuple
     return est.seconds, est.rate_text()
 
 
+def sequential_lines(studies: list[str], profile: str) -> list[str]:
+    """One line per study whose ``profile`` runs its mean claims until decided: the claims, the
+    most rounds, the looks and the worst case (``study decide``); ``make reports`` runs the full
+    plan (every instance: the study's fixed-n claims need them all), and each sequential claim
+    reads its first looks' instances (docs/sequential.md)."""
+    from harness.report.sequential_rows import design_of
+    from harness.spec.study_files import list_studies, load_register, load_study
+    from harness.spec.study_schema import plural
+
+    register, out = load_register(), []
+    for name in [s for s in studies if s in set(list_studies())]:
+        d = design_of(load_study(name), register, profile=profile)
+        if d is None:
+            continue
+        looks = ", ".join(map(str, d.claims[0].plan.schedule()))
+        unit = "fresh instances" if d.claims[0].fresh else "runs per arm"
+        out.append(f"  {name}: {plural(len(d.claims), 'mean claim')} until decided, at most {plural(d.rounds(), 'round')}"
+                   f" (looks at {looks} {unit}), worst case {d.worst_case()} of its runs")
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Print the plan and the expected total time."""
     from ftgspp.errors import InputError, exit_on_input_error
@@ -55,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
         secs, _ = seconds(r.to_run, args.jobs, args.seconds_per_run)
         print(f"  {r.study:15s} {r.planned:4d} runs, {r.finished:4d} finished, {r.to_run:4d} to run"
               f"  ~{secs / 60:6.1f} min{where}")
+    for line in sequential_lines(list(plan.study), args.profile):
+        print(line)
     if args.todo is not None:
         args.todo.write_text("".join(f"{r.study}\n" for r in plan.itertuples() if r.to_run > 0))
     todo = int(plan.to_run.sum())

@@ -207,3 +207,16 @@ def test_every_same_bits_record_names_its_check() -> None:
     for rec in same_bits_records():
         assert re.fullmatch(r"[0-9a-f]{12}", str(rec["trainer"])) and re.fullmatch(r"[0-9a-f]{12}", str(rec["same_bits_as"]))
         assert "study check" in rec["evidence"] and rec["change"] and rec["date"]
+
+
+def test_the_plan_states_each_sequential_studys_rounds_and_worst_case() -> None:
+    from harness.analysis import sequential_study as S
+    from harness.cli.reports_plan import sequential_lines
+    from harness.spec.study_files import list_studies, load_register, load_study
+
+    names = list_studies()
+    lines = sequential_lines([*names, "not_a_study"], "quick")
+    planned = [n for n in names if load_study(n).profiles["quick"].sequential is not None]
+    assert [line.split(":")[0].strip() for line in lines] == planned
+    d = S.design(load_study(planned[0]), "quick", load_register(), lambda: {n: load_study(n) for n in names})
+    assert f"at most {d.rounds()} rounds" in lines[0] and f"worst case {d.worst_case()} of its runs" in lines[0]
