@@ -27,7 +27,7 @@ from harness.spec import registration, study_files
 from harness.spec.instances import instance_columns
 from harness.spec.metrics import add_differences
 from harness.spec.paper_register import Register
-from harness.spec.runs import Selection
+from harness.spec.runs import Selection, expand
 from harness.spec.study_files import list_studies, load_register, load_study
 
 CODE_AT = re.compile(r"code at ([0-9a-f]{7,40}(?:, [0-9a-f]{7,40})*)")  # a study page's provenance line
@@ -82,7 +82,7 @@ def report_claims(name: str, root: Path, register: Register, studies_dir: Path |
     page = (folder / "index.md").read_text() if (folder / "index.md").is_file() else ""
     code = m.group(1).strip() if (m := CODE_AT.search(page)) else ""
     study = load_study(name, studies_dir)
-    df = instance_columns(df, study)  # from the study's scenes: a runs.csv may predate the columns
+    df = instance_columns(with_fresh_planned(df, study), study)  # a runs.csv may predate the columns
     runs = add_differences(df)
     design = sequential_rows.design_of(study, register, studies_dir)
     frame = with_registration(V.evaluate(runs, study.claims, name, register, sequential_rows.claim_ids(design)),
@@ -90,6 +90,21 @@ def report_claims(name: str, root: Path, register: Register, studies_dir: Path |
     frame = sequential_rows.annotate(frame, design, runs)
     return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),
                        n_done, code, tuple(trainer_fingerprints(df)), source="committed report")
+
+
+def with_fresh_planned(df: pd.DataFrame, study, profile: str = "quick") -> pd.DataFrame:
+    """A committed ``runs.csv`` with a MISSING row for every fresh-instance run the study's
+    ``profile`` now plans and the file lacks (a report written before its scenes had instances):
+    a runs frame lists every planned run, and the instance-level tests decide from those rows
+    what they leave out (``spec.instances.fresh``), so the committed pilot is never tested as a
+    fresh instance. Planned from the study file alone (``spec.runs.expand``: no Hydra)."""
+    if profile not in study.profiles:
+        return df
+    have = set(zip(df.variant.astype(str), df.scene.astype(str), df.seed.astype(int)))
+    rows = [{"variant": r.variant, "scene": r.scene.name, "seed": r.seed, "status": "MISSING"}
+            for r in expand(study, Selection(profile=profile))
+            if r.scene.instance > 0 and (r.variant, r.scene.name, r.seed) not in have]
+    return pd.concat([df, pd.DataFrame(rows)], ignore_index=True) if rows else df
 
 
 def with_registration(frame: pd.DataFrame, runs: pd.DataFrame, claims: tuple, study: str,

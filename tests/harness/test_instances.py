@@ -374,3 +374,20 @@ def test_the_study_page_shows_a_scenes_fresh_instances_as_one_column_beside_the_
     assert plain.shown() is plain.df  # no fresh instances: the page as before
     page = sections.tables_section(data)
     assert "easy, 3 fresh instances" in str(page) and "one run each" in str(page)
+
+
+def test_a_committed_report_written_before_instances_is_read_with_the_fresh_runs_now_planned() -> None:
+    """A runs.csv made before its scenes had instances lists no fresh run; the committed-report
+    path adds them as MISSING, so its instance-level claims wait instead of testing the pilot."""
+    from harness.report.families import with_fresh_planned
+
+    study = parse_study(mini(3), Path("mini.yaml"))
+    old = frame(1, seeds=2).assign(scene="easy", instance_of="easy").drop(columns=["instance_of", "instance"])
+    full = instance_columns(with_fresh_planned(old, study), study)
+    added = full[full.instance > 0]
+    assert sorted(set(added.scene)) == ["easy@1", "easy@2"] and set(added.status) == {"MISSING"}
+    assert len(added) == 4  # 2 variants x 2 fresh instances x their one seed
+    c = claim(scenes=("easy",))
+    with pytest.raises(ValueError, match="0 of the 4 runs"):
+        claim_compare.compare(full, c, c.scenes)
+    assert with_fresh_planned(full, study).equals(full)  # nothing more to add
