@@ -119,11 +119,15 @@ def read_slices(store: object, run_id: str) -> dict[str, np.ndarray] | None:
 
 def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
     """``xt_grid_<scene>.png`` per scene when the study lists the ``xt_grid`` plot; (caption, path)
-    pairs. Nothing without a tracking store (a report from committed runs has no arrays)."""
-    if "xt_grid" not in data.study.plots or data.store is None:
+    pairs. Without a tracking store (a report from committed runs has no arrays) the figures already in
+    ``out`` for those scenes, drawn by the report the runs came from."""
+    if "xt_grid" not in data.study.plots:
         return []
     variants, scenes = data.order()
     labels = data.labels()
+    if data.store is None:  # a report from committed runs: the figures its runs' report drew, if there
+        return [(_caption(labels.get(s, s)), out / f"xt_grid_{s}.png") for s in scenes
+                if (out / f"xt_grid_{s}.png").is_file()]
     made = []
     ok = data.df[data.df.status == "FINISHED"]
     for scene in scenes:
@@ -147,6 +151,10 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
             continue
         path = xt_grid_figure(rows, truth, f"{data.study.name}: x–t slices, {labels.get(scene, scene)}",
                               out / f"xt_grid_{scene}.png")
-        made.append((f"x–t slices of |render − noise-free ground truth| on {labels.get(scene, scene)}: a row per"
-                     " variant, a column per seed, one colour scale", path))
+        made.append((_caption(labels.get(scene, scene)), path))
     return made
+
+
+def _caption(label: str) -> str:
+    return (f"x–t slices of |render − noise-free ground truth| on {label}: a row per variant, a column per seed,"
+            " one colour scale")
