@@ -160,11 +160,9 @@ def pending(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> tupl
 def by_instance(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> bool:
     """Is ``claim`` tested with the instance as its unit? A mean, contrast or interaction claim
     (not ``unit: seed``) one of whose scenes has fresh instances in ``df`` (planned or run)."""
-    if not takes_instances(claim):
+    if not takes_instances(claim) or "instance" not in df:
         return False
-    if "instance" in df and (df[on_scenes(df, scenes)].instance > PILOT).any():  # drawn, run or not
-        return True
-    return bool((claim_runs(df, claim, scenes).instance > PILOT).any())
+    return bool((df[on_scenes(df, scenes)].instance > PILOT).any())  # drawn, run or not
 
 
 def units(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> pd.DataFrame:

@@ -253,6 +253,15 @@ def _side(claimed: bool) -> str:
     return "the claimed" if claimed else "the opposite"
 
 
+def held_shares(rows: pd.DataFrame) -> pd.Series:
+    """The α each study's sequential rows among ``rows`` hold, one share per study (its claims of
+    a group hold it together: ``sequential_study.Design.alpha``); a frame without ``study`` is
+    one study's."""
+    if rows.empty:
+        return pd.Series(dtype=float)
+    return rows.groupby("study").seq_alpha.first() if "study" in rows else rows.seq_alpha.iloc[:1]
+
+
 def sequential_rows(frame: pd.DataFrame) -> pd.Series:
     """Which counted rows a sequential design decides (``report.sequential_rows``: a
     ``seq_verdict``); False everywhere for a frame without one."""
@@ -284,10 +293,7 @@ def decide(frame: pd.DataFrame, method: str = CORRECTION, label: str = "") -> pd
     for group, idx in out[out.counted].groupby("group").groups.items():
         run_until = [i for i in idx if seq[i]]
         idx = [i for i in idx if not seq[i]]
-        # one share per study (its sequential claims of the group hold it together: ``Design.alpha``)
-        seqs = out.loc[run_until]
-        held = float(seqs.groupby("study").seq_alpha.first().sum() if "study" in seqs else seqs.seq_alpha.max()) \
-            if run_until else 0.0
+        held = float(held_shares(out.loc[run_until]).sum())
         alpha = max(0.0, stats.ALPHA - held)
         for i in run_until:
             out.at[i, "family"] = (f"{group}{label}: run until decided at α {float(out.at[i, 'seq_alpha']):.3g};"

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from harness.analysis import sequential as Q
+from harness.analysis import sequential as Q, verdicts as V
 from harness.spec.instances import PILOT
 from harness.spec.study_files import list_studies, load_study
 
@@ -64,12 +64,11 @@ def family_text(rows) -> str:
     Holm's text, and how many rows run until decided with the α they hold; "" when none."""
     if not len(rows):
         return ""
-    seq = rows.seq_verdict.astype(object).fillna("").astype(str) != "" if "seq_verdict" in rows else None
-    fixed = rows[~seq] if seq is not None else rows
-    text = next((f for f in fixed.family if f), "")
-    if seq is None or not seq.any():
+    seq = V.sequential_rows(rows)
+    text = next((f for f in rows[~seq].family if f), "")
+    if not seq.any():
         return text
-    held = rows[seq].groupby("study").seq_alpha.first() if "study" in rows else rows[seq].seq_alpha.iloc[:1]
+    held = V.held_shares(rows[seq])
     part = (f"{int(seq.sum())} rows of {_studies(len(held))} run until decided, holding α {float(held.sum()):.3g}"
             " (docs/sequential.md)")
     return f"{text}; {part}" if text else part

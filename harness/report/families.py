@@ -59,11 +59,7 @@ def store_claims(name: str, register: Register, studies_dir: Path | None = None,
     n_done = int((data.df.status == "FINISHED").sum())
     if n_done == 0:
         return None
-    runs = add_differences(data.df)
-    design = sequential_rows.design_of(data.study, register, studies_dir, profile)
-    frame = with_registration(V.evaluate(runs, data.study.claims, name, register, sequential_rows.claim_ids(design)),
-                              data.df, data.study.claims, name, studies_dir)
-    frame = sequential_rows.annotate(frame, design, runs)
+    frame = claims_frame(data.study, data.df, register, studies_dir, profile)
     return StudyClaims(name, data.study.question, frame, (Path(name) / "index.md").as_posix(), n_done,
                        ", ".join(data.code_versions()), tuple(data.trainer_fingerprints()))
 
@@ -83,13 +79,20 @@ def report_claims(name: str, root: Path, register: Register, studies_dir: Path |
     code = m.group(1).strip() if (m := CODE_AT.search(page)) else ""
     study = load_study(name, studies_dir)
     df = instance_columns(with_fresh_planned(df, study), study)  # a runs.csv may predate the columns
-    runs = add_differences(df)
-    design = sequential_rows.design_of(study, register, studies_dir)
-    frame = with_registration(V.evaluate(runs, study.claims, name, register, sequential_rows.claim_ids(design)),
-                              df, study.claims, name, studies_dir)
-    frame = sequential_rows.annotate(frame, design, runs)
+    frame = claims_frame(study, df, register, studies_dir)
     return StudyClaims(name, study.question, frame, (Path(name) / "index.md").as_posix(),
                        n_done, code, tuple(trainer_fingerprints(df)), source="committed report")
+
+
+def claims_frame(study, df: pd.DataFrame, register: Register, studies_dir: Path | None,
+                 profile: str | None = None) -> pd.DataFrame:
+    """The study's claims evaluated on its runs frame ``df`` (its sequential design's claims
+    unsplit), with their registration from git and the sequential replay's decisions."""
+    runs = add_differences(df)
+    design = sequential_rows.design_of(study, register, studies_dir, profile)
+    frame = with_registration(V.evaluate(runs, study.claims, study.name, register, sequential_rows.claim_ids(design)),
+                              df, study.claims, study.name, studies_dir)
+    return sequential_rows.annotate(frame, design, runs)
 
 
 def with_fresh_planned(df: pd.DataFrame, study, profile: str = "quick") -> pd.DataFrame:

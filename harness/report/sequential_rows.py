@@ -56,11 +56,8 @@ def _text(o: S.Outcome, alpha: float, spending: str) -> str:
     if dec is None:
         return f"{rule}: no look yet (the first needs {o.needs} {c.unit})"
     if o.status == Q.DECIDED:
-        which = " and ".join(dec.rejected)
-        return f"{rule}: the {which} test rejected at look {dec.look} ({dec.n} {c.unit}, p = {max(dec.p):.2g})" \
-            if len(dec.rejected) > 1 else \
-            f"{rule}: the {which} test rejected at look {dec.look} ({dec.n} {c.unit}," \
-            f" p = {dec.p[Q.HYPOTHESES.index(dec.rejected[0])]:.2g})"
+        p = max(dec.p[Q.HYPOTHESES.index(h)] for h in dec.rejected)
+        return f"{rule}: the {' and '.join(dec.rejected)} test rejected at look {dec.look} ({dec.n} {c.unit}, p = {p:.2g})"
     if o.status == Q.CONTINUE:
         return f"{rule}: undecided at look {dec.look} ({dec.n} {c.unit}); the next look needs {o.needs}"
     need = (f"a fixed design at its share needs about {int(dec.runs_needed)} {c.unit}" if dec.runs_needed < 1e9
