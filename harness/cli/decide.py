@@ -79,6 +79,8 @@ def read_runs(d: S.Design, echo: Echo) -> tuple[Any, str]:
     if not (data.df.status == "FINISHED").any():
         with contextlib.suppress(InputError):  # before the first round there are no runs anywhere
             data = committed.from_committed(data, COMMITTED_REPORTS / d.study.name, echo=lambda line: None)
+    else:
+        data = committed.fill_missing(data, COMMITTED_REPORTS / d.study.name, echo)
     if data.recorded is not None:
         echo(f"runs: {(data.recorded.folder / 'runs.csv').as_posix()} (the tracking store has none of them)")
     else:

@@ -149,7 +149,7 @@ def claims_markdown(frame: pd.DataFrame, decided: dict[str, str] | None = None) 
         lines.append(f"| **{r.id}**: {r.statement} | {role_text(r, decided)} | {r.comparison} (`{r.metric}`{detail}) |"
                      f" {sesoi_text(r)} | {effect_text(r)} | {text(r.n)} | {stat} | {p_text(r.p)} |"
                      f" {p_decided_text(r)} | {verdict_text(r)} |")
-    families = sorted({f for f in frame.family if f})
+    families = families_text(frame)
     methods = sorted({m for m in frame.method if m})
     scales = sorted({r.sesoi_source for _, r in frame.iterrows() if r.sesoi_source})
     changed = [r for _, r in frame.iterrows() if late(r) or r.withdrawn]
@@ -168,6 +168,26 @@ def claims_markdown(frame: pd.DataFrame, decided: dict[str, str] | None = None) 
         why = sorted({r.registration_note for _, r in frame.iterrows() if r.id in unknown and r.registration_note})
         lines += ["", f"Registered before their runs? Unknown for {', '.join(unknown)}: {'; '.join(why)}."]
     return "\n".join(lines)
+
+
+def families_text(frame: pd.DataFrame) -> list[str]:
+    """One entry per family the study's rows count in: its fixed-n Holm (as a fixed-n row of it
+    says, else as its rows run until decided quote it), then the α those rows of this study hold."""
+    seq = V.sequential_rows(frame) if len(frame) else pd.Series(dtype=bool)
+    out = []
+    for group in sorted({str(g) for g, f in zip(frame.group, frame.family) if f}):
+        rows = frame[(frame.group.astype(str) == group) & (frame.family != "")]
+        fixed = [f for f in rows[~seq[rows.index]].family if f]
+        held = rows[seq[rows.index]]
+        if not len(held):
+            out += sorted(set(fixed))
+            continue
+        head, _, holm = str(held.family.iloc[0]).partition("; ")
+        text = fixed[0] if fixed else f"{head.split(': ')[0]}: {holm}"
+        alphas = ", ".join(f"{a:.3g}" for a in sorted({float(a) for a in held.seq_alpha}))
+        out.append(f"{text}; this study's {len(held)} {'row' if len(held) == 1 else 'rows'} run until decided"
+                   f" at α {alphas}")
+    return out
 
 
 def claims_latex(frame: pd.DataFrame, study: str) -> str:

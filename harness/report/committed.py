@@ -25,10 +25,11 @@ import pandas as pd
 from ftgspp.errors import InputError
 from harness.analysis.aggregate import DOMAIN_COLUMNS, KEY_COLUMNS, RUN_COLUMNS
 from harness.analysis.reproduction import read_reference
-from harness.report.results import Recorded, ReportData
+from harness.report.results import Filled, Recorded, ReportData, trainer_fingerprints
 from harness.spec.instances import instance_columns
 from harness.spec.metrics import add_differences
 from harness.spec.runs import command_line
+from harness.tracking.provenance import same_bits
 from harness.tracking.store import display_uri
 
 TRACKING = re.compile(r"^MLflow store `([^`]*)`, experiment `([^`]*)`; code at (.*?); trainer fingerprint", re.M)
@@ -96,6 +97,78 @@ def from_committed(data: ReportData, folder: Path, echo: Callable[[str], None] =
     if lacks:
         echo(f"{name}: not in the committed report, so not on the page: {'; '.join(lacks)}")
     return data
+
+
+def fill_missing(data: ReportData, folder: Path, echo: Callable[[str], None] = print) -> ReportData:
+    """``data`` read from the tracking store, with each planned run the store lacks (MISSING) that
+    the committed report in ``folder`` holds finished, by the trainer of the store's finished runs
+    or one recorded to train its bits (``tracking.provenance.same_bits``), read from that report
+    (``Filled``): the same config hash and trainer bits give the same run (``study check`` proves it
+    of the runs both hold). A run the store
+    holds in any state, or the file holds by another trainer, stays as the store has it. The rows
+    keep the commit and start time they were made at, which registration reads. ``data`` itself
+    when nothing is filled."""
+    path = folder / "runs.csv"
+    df = data.df
+    lacking = df.status == "MISSING"
+    if data.recorded is not None or not lacking.any() or not (df.status == "FINISHED").any() or not path.is_file():
+        return data
+    same = set().union(*(same_bits(f) for f in set(trainer_fingerprints(df)) - {"unrecorded"}))
+    runs = read_runs(path)
+    runs = runs[(runs.status == "FINISHED") & runs.trainer_fingerprint.isin(same)]
+    held = {key: i for i, key in enumerate(runs[KEY_COLUMNS].itertuples(index=False, name=None))}
+    keys = [key if want and key in held else None
+            for key, want in zip(df[KEY_COLUMNS].itertuples(index=False, name=None), lacking)]
+    filled = [k for k in keys if k is not None]
+    if not filled:
+        return data
+    rows = runs.iloc[[held[k] for k in filled]].assign(_order=[i for i, k in enumerate(keys) if k is not None])
+    rest = df.assign(_order=range(len(df)))[[k is None for k in keys]]
+    out = add_differences(instance_columns(pd.concat([rest, rows]), data.study))
+    out = out.sort_values("_order", kind="stable").drop(columns="_order").reset_index(drop=True)
+    code = tuple(sorted(set(rows.git_sha.astype(str)) - {""}))
+    echo(f"{data.study.name}: {len(filled)} of its {len(df)} planned runs, which the tracking store lacks, read from"
+         f" the committed report ({path}; made at {', '.join(c[:7] for c in code) or 'unknown code'}, by the store's"
+         f" trainer or one recorded to train its bits)")
+    return dataclasses.replace(data, df=out, filled=Filled(folder, frozenset(filled), code))
+
+
+def filled_text(data: ReportData) -> str:
+    """The page's sentence on the runs read from the committed report (``fill_missing``), else ""."""
+    if data.filled is None:
+        return ""
+    n = len(data.filled.keys)
+    return (f" {n} {'run' if n == 1 else 'runs'} of the plan, which the store lacks, {'is' if n == 1 else 'are'}"
+            f" read from the committed report (`{(data.filled.folder / 'runs.csv').as_posix()}`), made at"
+            f" {', '.join(c[:7] for c in data.filled.code) or 'unknown code'} by the store's trainer or one recorded"
+            " to train its bits (`harness/tracking/same_bits.yaml`); their diagnostics and figures are that report's.")
+
+
+def filled_diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[Path]]]:
+    """``diagnostics`` of the cells whose finished runs all come from the committed report
+    (``fill_missing``): that report's files, with the seed its page named."""
+    cells = filled_cells(data)
+    if not cells:
+        return []
+    done = data.df[data.df.status == "FINISHED"]
+    only = done[[cell in cells for cell in zip(done.variant, done.scene)]]
+    return diagnostics(dataclasses.replace(data, df=only, recorded=read_recorded(data.filled.folder)), out)
+
+
+def filled_rows(data: ReportData) -> pd.Series:
+    """Which rows of ``data.df`` were read from the committed report (``fill_missing``)."""
+    keys = data.filled.keys if data.filled is not None else frozenset()
+    return pd.Series([k in keys for k in data.df[KEY_COLUMNS].itertuples(index=False, name=None)],
+                     index=data.df.index, dtype=bool)
+
+
+def filled_cells(data: ReportData) -> set[tuple[str, str]]:
+    """(variant, scene) cells whose finished runs all come from the committed report."""
+    if data.filled is None:
+        return set()
+    done = data.df[data.df.status == "FINISHED"]
+    mask = filled_rows(data)[done.index]
+    return {cell for cell, sub in done.groupby(["variant", "scene"], sort=False).groups.items() if mask[sub].all()}
 
 
 def missing_diagnostics(recorded: Recorded | None) -> list[str]:

@@ -21,7 +21,7 @@ from pathlib import Path
 import pandas as pd
 
 from harness.analysis import verdicts as V
-from harness.report import COMMITTED_REPORTS, sequential_rows
+from harness.report import COMMITTED_REPORTS, committed, sequential_rows
 from harness.report.results import collect, store_has_runs, trainer_fingerprints
 from harness.spec import registration, study_files
 from harness.spec.instances import instance_columns
@@ -59,6 +59,8 @@ def store_claims(name: str, register: Register, studies_dir: Path | None = None,
     n_done = int((data.df.status == "FINISHED").sum())
     if n_done == 0:
         return None
+    data = committed.fill_missing(data, COMMITTED_REPORTS / name, echo=lambda line: None)
+    n_done = int((data.df.status == "FINISHED").sum())
     frame = claims_frame(data.study, data.df, register, studies_dir, profile)
     return StudyClaims(name, data.study.question, frame, (Path(name) / "index.md").as_posix(), n_done,
                        ", ".join(data.code_versions()), tuple(data.trainer_fingerprints()))

@@ -45,6 +45,7 @@ class ReportData:
     store: Store | None
     chosen: dict[Any, RunRecord | None] = field(default_factory=dict)
     recorded: Recorded | None = None  # the runs come from a committed report's runs.csv (report.committed)
+    filled: Filled | None = None  # some runs the store lacks come from it (report.committed.fill_missing)
 
     @property
     def baseline(self) -> str:
@@ -91,7 +92,8 @@ class ReportData:
         """The git commits recorded by the runs that count."""
         if self.recorded is not None:
             return list(self.recorded.code)
-        return sorted({rec.tags.get("git_sha", "") for rec in self.chosen.values() if rec is not None} - {""})
+        found = {rec.tags.get("git_sha", "") for rec in self.chosen.values() if rec is not None}
+        return sorted((found | set(self.filled.code if self.filled is not None else ())) - {""})
 
     def parent_ids(self) -> list[str]:
         """The study-level (parent) runs' ids, shortened to 8 characters."""
@@ -119,6 +121,16 @@ class Recorded:
     parents: tuple[str, ...] = ()  # parent run ids (8 characters)
     invocations: tuple[str, ...] = ()
     diagnostic_seeds: tuple[tuple[str, str, int], ...] = ()  # (variant, scene, seed) whose figures it shows
+
+
+@dataclass(frozen=True)
+class Filled:
+    """Runs of the plan the tracking store lacks, read from the committed report in ``folder``
+    (``report.committed.fill_missing``): their keys and the commits they were made at."""
+
+    folder: Path  # reports/NAME
+    keys: frozenset[RunKey]
+    code: tuple[str, ...] = ()
 
 
 def trainer_fingerprints(df: pd.DataFrame) -> list[str]:

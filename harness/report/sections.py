@@ -293,9 +293,14 @@ def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[P
     patterns = list(data.study.diagnostics)  # a study that names none copies none (they are in the store)
     if data.store is None or not patterns:
         return []
-    got = []
+    got = committed.filled_diagnostics(data, out)  # cells whose runs the store lacks: the committed files
+    skip = committed.filled_cells(data)
     ok = data.df[data.df.status == "FINISHED"].sort_values("seed")
+    if "instance" in ok:
+        ok = ok[ok.instance == 0]  # a fresh instance (one run) has the figures of its scene as written
     for (v, s), sub in ok.groupby(["variant", "scene"], sort=False):
+        if (v, s) in skip:
+            continue
         found = _diagnostic_files(data, sub, patterns)
         if found is None:
             continue
@@ -303,7 +308,8 @@ def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[P
         paths = data.store.copy_artifacts(r.run_id, keep, out / "diagnostics" / v / s, under="diagnostics")
         if paths:
             got.append((v, s, int(r.seed), paths))
-    return got
+    order = {cell: i for i, cell in enumerate(dict.fromkeys(zip(data.df.variant, data.df.scene)))}
+    return sorted(got, key=lambda g: order.get((g[0], g[1]), len(order)))
 
 
 def determinism_lines(df: pd.DataFrame) -> list[str]:

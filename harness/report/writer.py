@@ -170,7 +170,7 @@ def study_page(data: ReportData, out: Path, main: sections.TablesSection, extra:
         "",
         f"MLflow store `{display_uri(data.uri)}`, experiment `{data.experiment}`; code at {', '.join(git) or 'unknown'};"
         f" trainer fingerprint {', '.join(f'`{f}`' for f in data.trainer_fingerprints()) or 'none'}"
-        f" (this checkout: `{checkout_fingerprint()}`).",
+        f" (this checkout: `{checkout_fingerprint()}`).{committed.filled_text(data)}",
         f"Parent runs: {', '.join(data.parent_ids()) or 'none'}. Browse them with:",
         "",
         "```sh",
@@ -238,6 +238,8 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
             echo(f"{name}: no finished runs, no report")
             return None
         data = committed.from_committed(data, COMMITTED_REPORTS / name, echo)  # else InputError
+    else:
+        data = committed.fill_missing(data, COMMITTED_REPORTS / name, echo)
     out = Path(reports_root) / name
     # a whole profile asked for (`study report --all --profile quick`, as `make reports`): every
     # study's verdicts over that profile's runs, not over whatever subset each last ran
@@ -260,7 +262,7 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
         pd.concat(main.summaries.values(), ignore_index=True).to_csv(out / "summary.csv", index=False)
     figures = sections.figures(data, out) + xt_figures.figures(data, out)
     if data.recorded is None:  # from the store: the diagnostics are this report's alone (none stale);
-        shutil.rmtree(out / "diagnostics", ignore_errors=True)  # from committed runs they are the source
+        _clear_diagnostics(out / "diagnostics", committed.filled_cells(data))  # from committed runs the source
     diags = sections.diagnostics(data, out)
     (out / "index.md").write_text(study_page(data, out, main, extra, figures, diags))
     (out / FINGERPRINT).write_text(stamp + "\n")
@@ -269,6 +271,19 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
          f" {c['n_missing'] + c['n_running']} missing) written to {out / 'index.md'}")
     mlflow_answer.log_answer(data, out, echo)  # the verdicts and means on the reported parent run
     return out / "index.md"
+
+
+def _clear_diagnostics(folder: Path, keep: set[tuple[str, str]]) -> None:
+    """Remove ``folder`` (``<variant>/<scene>/`` diagnostics) but the cells in ``keep``: those of runs
+    read from the committed report, whose files there are their source."""
+    if not keep:
+        shutil.rmtree(folder, ignore_errors=True)
+        return
+    for cell in sorted(p for p in folder.glob("*/*") if p.is_dir()):
+        if (cell.parent.name, cell.name) not in keep:
+            shutil.rmtree(cell)
+    for variant in [p for p in folder.glob("*") if p.is_dir() and not any(p.iterdir())]:
+        variant.rmdir()
 
 
 def _embed(path: Path, root: Path) -> str:

@@ -27,7 +27,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from harness.report import plots  # noqa: E402  (plots.save_figure: the report's one way to write a figure)
+from harness.report import committed, plots  # noqa: E402  (plots.save_figure: the report's one way to write a figure)
 from harness.report.results import ReportData  # noqa: E402
 
 ARTIFACT = "diagnostics/xt_slice.npz"
@@ -130,10 +130,15 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
                 if (out / f"xt_grid_{s}.png").is_file()]
     made = []
     ok = data.df[data.df.status == "FINISHED"]
+    filled = committed.filled_rows(data)
     for scene in scenes:
         here = ok[ok.scene == scene]
         if "instance" in here and (here.instance > 0).any():
             continue  # a fresh instance (one run): the slices show the scenes as written
+        if len(here) and filled[here.index].all():
+            if (out / f"xt_grid_{scene}.png").is_file():  # its runs come from the committed report: its figure
+                made.append((_caption(labels.get(scene, scene)), out / f"xt_grid_{scene}.png"))
+            continue
         seeds = sorted({int(s) for s in here.seed})[:MAX_SEEDS]
         shown = [v for v in variants if (here.variant == v).any()]
         if not seeds or not shown:

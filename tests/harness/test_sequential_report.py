@@ -156,3 +156,16 @@ def test_the_families_line_names_the_fixed_n_holm_and_the_share_the_sequential_r
     text = family_text(paper)
     assert f"2 rows of 1 study run until decided, holding α {d.alpha('paper'):.3g}" in text
     assert family_text(paper.iloc[0:0]) == ""
+
+
+def test_a_study_page_names_each_family_once_with_the_alpha_its_sequential_rows_hold() -> None:
+    from harness.report.claims_table import families_text
+
+    frame, d = _rows(_frame({"base": 9, "cc": 9, "gate": 9, "free": 9}))
+    decided = V.decide(frame.assign(study="seq")).drop(columns="study")
+    lines = families_text(decided)
+    groups = sorted({str(g) for g, f in zip(decided.group, decided.family) if f})
+    assert len(lines) == len(groups) and all(line.startswith(f"{g} ") or line.startswith(f"{g}:")
+                                             for line, g in zip(lines, groups))
+    (paper,) = [line for line in lines if line.startswith("paper")]
+    assert paper.endswith(f"this study's 2 rows run until decided at α {d.alpha('paper'):.3g}")
