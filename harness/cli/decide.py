@@ -145,6 +145,7 @@ def _continuing(d: S.Design, o: S.Outcome, done: set) -> str:
 
 
 def _at_cap(d: S.Design, o: S.Outcome) -> str:
+    from harness.spec.instances import instance_name
     from harness.spec.runs import Selection, command_line
 
     dec, c = o.decision, o.claim
@@ -154,10 +155,14 @@ def _at_cap(d: S.Design, o: S.Outcome) -> str:
         why = "its runs show no spread" if math.isnan(dec.runs_needed) else "more than 1000 per arm"
         return head + f"a fixed design's runs cannot be estimated ({why})"
     n = int(dec.runs_needed)
-    more = S.SeqClaim(c.spec, c.plan, c.base_seed, math.ceil(n / len(c.spec.scenes))) if c.fresh else c
-    sel = Selection(d.profile.name, more.seeds(n), list(more.scenes(n)), list(c.spec.arms()))
-    draw = (f" drawn with `instances: {more.fresh + 1}` on {', '.join(c.spec.scenes)} in profiles.{d.profile.name}"
-            if c.fresh else "")
+    if c.fresh:  # new instances after those its looks read: a confirmatory design on data it has not seen
+        k = math.ceil(n / len(c.spec.scenes))
+        scenes = [instance_name(s, i) for i in range(c.fresh + 1, c.fresh + 1 + k) for s in c.spec.scenes]
+        sel = Selection(d.profile.name, 1, scenes, list(c.spec.arms()))
+        draw = (f", on new instances {c.fresh + 1}–{c.fresh + k} (`instances: {c.fresh + 1 + k}` on"
+                f" {', '.join(c.spec.scenes)} in profiles.{d.profile.name})")
+    else:
+        sel, draw = Selection(d.profile.name, c.seeds(n), list(c.scenes(n)), list(c.spec.arms())), ""
     return head + (f"a fixed design at that share needs {n} {c.unit} (80% power at the SESOI),"
                    f" {_hours(d, n * c.plan.arms)} on {d.profile.machine}; on a cluster{draw}:"
                    f" {command_line(d.study.name, sel, launcher='slurm')}")

@@ -340,3 +340,17 @@ def test_until_decided_runs_round_after_round_and_tags_each_round(workdir: Path,
     parents = load_runs(store, "ftgspp/seqfake", "seqfake", kind="study")
     assert [p.tags["sequential.round"] for p in parents] == ["1", "2"]
     assert [json.loads(p.tags["sequential.looks"]) for p in parents] == [{"cc": 3}, {"cc": 5}]
+
+
+def test_at_its_cap_a_claim_on_instances_names_a_fixed_design_on_new_instances() -> None:
+    """The fixed design a claim undecided at its cap would need reads instances its looks never read."""
+    d = S.design(_study(_instances_study(10)), "quick", Register())
+    (paper,) = S.decide(d, _instance_frame(9))
+    (o,) = paper.outcomes
+    assert o.status == Q.AT_CAP and o.runs.n == 9
+    n = int(o.decision.runs_needed)
+    line = D._at_cap(d, o)
+    assert f"needs {n} paired instances" in line and f"on new instances 10–{9 + n} (`instances: {10 + n}` on studio" in line
+    command = line.split(": study run ", 1)[1]
+    named = command.split("--scenes ")[1].split(" ")[0].split(",")
+    assert named == [f"studio@{i}" for i in range(10, 10 + n)] and "--seeds 1" in command
