@@ -79,8 +79,6 @@ def read_runs(d: S.Design, echo: Echo) -> tuple[Any, str]:
     if not (data.df.status == "FINISHED").any():
         with contextlib.suppress(InputError):  # before the first round there are no runs anywhere
             data = committed.from_committed(data, COMMITTED_REPORTS / d.study.name, echo=lambda line: None)
-    else:
-        data = committed.fill_missing(data, COMMITTED_REPORTS / d.study.name, echo)
     if data.recorded is not None:
         echo(f"runs: {(data.recorded.folder / 'runs.csv').as_posix()} (the tracking store has none of them)")
     else:
@@ -157,7 +155,7 @@ def _at_cap(d: S.Design, o: S.Outcome) -> str:
     n = int(dec.runs_needed)
     if c.fresh:  # new instances after those its looks read: a confirmatory design on data it has not seen
         k = math.ceil(n / len(c.spec.scenes))
-        scenes = [instance_name(s, i) for i in range(c.fresh + 1, c.fresh + 1 + k) for s in c.spec.scenes]
+        scenes = [instance_name(s, i) for i in range(c.fresh + 1, c.fresh + 1 + k) for s in c.spec.scenes][:n]
         sel = Selection(d.profile.name, 1, scenes, list(c.spec.arms()))
         draw = (f", on new instances {c.fresh + 1}–{c.fresh + k} (`instances: {c.fresh + 1 + k}` on"
                 f" {', '.join(c.spec.scenes)} in profiles.{d.profile.name})")

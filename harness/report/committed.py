@@ -102,9 +102,11 @@ def from_committed(data: ReportData, folder: Path, echo: Callable[[str], None] =
 def fill_missing(data: ReportData, folder: Path, echo: Callable[[str], None] = print) -> ReportData:
     """``data`` read from the tracking store, with each planned run the store lacks (MISSING) that
     the committed report in ``folder`` holds finished, by the trainer of the store's finished runs
-    or one recorded to train its bits (``tracking.provenance.same_bits``), read from that report
-    (``Filled``): the same config hash and trainer bits give the same run (``study check`` proves it
-    of the runs both hold). A run the store
+    or one recorded to train its bits (``tracking.provenance.same_bits``), in a determinism domain
+    of theirs (``ftgspp.runtime.determinism``: same machine kind, mode and threads), read from that
+    report (``Filled``): the same config hash, trainer bits and domain give the same run (``study
+    check`` proves it of the runs both hold), so neither arm of a comparison carries another
+    machine's numbers. A run the store
     holds in any state, or the file holds by another trainer, stays as the store has it. The rows
     keep the commit and start time they were made at, which registration reads. ``data`` itself
     when nothing is filled."""
@@ -114,8 +116,11 @@ def fill_missing(data: ReportData, folder: Path, echo: Callable[[str], None] = p
     if data.recorded is not None or not lacking.any() or not (df.status == "FINISHED").any() or not path.is_file():
         return data
     same = set().union(*(same_bits(f) for f in set(trainer_fingerprints(df)) - {"unrecorded"}))
+    domains = set(df.loc[df.status == "FINISHED", "domain"].astype(str)) - {""} if "domain" in df else set()
     runs = read_runs(path)
-    runs = runs[(runs.status == "FINISHED") & runs.trainer_fingerprint.isin(same)]
+    if not {"trainer_fingerprint", "git_sha", "domain"} <= set(runs.columns):
+        return data  # a file older than the provenance columns cannot show it holds the same runs
+    runs = runs[(runs.status == "FINISHED") & runs.trainer_fingerprint.isin(same) & runs.domain.isin(domains)]
     held = {key: i for i, key in enumerate(runs[KEY_COLUMNS].itertuples(index=False, name=None))}
     keys = [key if want and key in held else None
             for key, want in zip(df[KEY_COLUMNS].itertuples(index=False, name=None), lacking)]
@@ -129,7 +134,7 @@ def fill_missing(data: ReportData, folder: Path, echo: Callable[[str], None] = p
     code = tuple(sorted(set(rows.git_sha.astype(str)) - {""}))
     echo(f"{data.study.name}: {len(filled)} of its {len(df)} planned runs, which the tracking store lacks, read from"
          f" the committed report ({path}; made at {', '.join(c[:7] for c in code) or 'unknown code'}, by the store's"
-         f" trainer or one recorded to train its bits)")
+         f" trainer or one recorded to train its bits, in its determinism domain)")
     return dataclasses.replace(data, df=out, filled=Filled(folder, frozenset(filled), code))
 
 
@@ -141,7 +146,8 @@ def filled_text(data: ReportData) -> str:
     return (f" {n} {'run' if n == 1 else 'runs'} of the plan, which the store lacks, {'is' if n == 1 else 'are'}"
             f" read from the committed report (`{(data.filled.folder / 'runs.csv').as_posix()}`), made at"
             f" {', '.join(c[:7] for c in data.filled.code) or 'unknown code'} by the store's trainer or one recorded"
-            " to train its bits (`harness/tracking/same_bits.yaml`); their diagnostics and figures are that report's.")
+            " to train its bits (`harness/tracking/same_bits.yaml`), in its determinism domain; their diagnostics"
+            " and figures are that report's.")
 
 
 def filled_diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[Path]]]:
@@ -152,6 +158,8 @@ def filled_diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int,
         return []
     done = data.df[data.df.status == "FINISHED"]
     only = done[[cell in cells for cell in zip(done.variant, done.scene)]]
+    if "instance" in only:
+        only = only[only.instance == 0]  # a fresh instance (one run) has the figures of its scene as written
     return diagnostics(dataclasses.replace(data, df=only, recorded=read_recorded(data.filled.folder)), out)
 
 
@@ -169,6 +177,14 @@ def filled_cells(data: ReportData) -> set[tuple[str, str]]:
     done = data.df[data.df.status == "FINISHED"]
     mask = filled_rows(data)[done.index]
     return {cell for cell, sub in done.groupby(["variant", "scene"], sort=False).groups.items() if mask[sub].all()}
+
+
+def kept_diagnostics(data: ReportData, out: Path) -> set[tuple[str, str]]:
+    """The cells of ``out/diagnostics`` a report from the store must not clear: those of runs read
+    from the committed report when ``out`` is that report's folder (its files are their source)."""
+    if data.filled is None or (out / "diagnostics").resolve() != (data.filled.folder / "diagnostics").resolve():
+        return set()
+    return filled_cells(data)
 
 
 def missing_diagnostics(recorded: Recorded | None) -> list[str]:

@@ -62,8 +62,9 @@ def store_claims(name: str, register: Register, studies_dir: Path | None = None,
     data = committed.fill_missing(data, COMMITTED_REPORTS / name, echo=lambda line: None)
     n_done = int((data.df.status == "FINISHED").sum())
     frame = claims_frame(data.study, data.df, register, studies_dir, profile)
+    source = f"tracking store and {len(data.filled.keys)} committed runs" if data.filled is not None else "tracking store"
     return StudyClaims(name, data.study.question, frame, (Path(name) / "index.md").as_posix(), n_done,
-                       ", ".join(data.code_versions()), tuple(data.trainer_fingerprints()))
+                       ", ".join(data.code_versions()), tuple(data.trainer_fingerprints()), source=source)
 
 
 def report_claims(name: str, root: Path, register: Register, studies_dir: Path | None = None) -> StudyClaims | None:

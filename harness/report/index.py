@@ -278,10 +278,16 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     lines += [f"Runs made by code {', '.join(codes) or 'unknown'}, trainer fingerprint"
               f" {', '.join(f'`{f}`' for f in prints) or 'unknown'}{same}."
               + (" **More than one trainer: regenerate from one.**" if len(prints) > 1 and not one_bits else ""), ""]
-    read = [e.study for e in entries if e.source != "tracking store"]
+    read = [e.study for e in entries if e.source == "committed report"]
     if read:
         lines += ["Read from their committed reports (`<study>/runs.csv`), the tracking store here having no runs"
                   " of them: " + ", ".join(f"`{s}`" for s in read) + ".", ""]
+    part = [f"`{e.study}` ({e.source.removeprefix('tracking store and ')})" for e in entries
+            if e.source.startswith("tracking store and ")]
+    if part:
+        lines += ["Read from the tracking store, with the runs it lacks read from their committed reports (same"
+                  " trainer bits and determinism domain; each study page's Tracking section): " + ", ".join(part)
+                  + ".", ""]
     return "\n".join(lines)
 
 

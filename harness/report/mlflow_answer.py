@@ -30,6 +30,7 @@ from typing import Callable
 
 import pandas as pd
 
+from harness.report import committed
 from harness.report.claims_table import effect_text, p_decided_text, sesoi_text, verdict_text
 from harness.report.fmt import num
 from harness.report.results import ReportData
@@ -154,7 +155,7 @@ def run_note(data: ReportData, claims: pd.DataFrame, means: pd.DataFrame, stamp:
     length (the verdicts first; what does not fit is in the artifacts)."""
     said = ", ".join(f"{r.id} **{r.verdict}**" for _, r in claims.iterrows())
     head = (f"The answer of {stamp} ({data.sel.profile} profile)" + (f": {said}." if said else ".")
-            + f" The tables: `{ANSWER_DIR}/` in Artifacts.")
+            + f" The tables: `{ANSWER_DIR}/` in Artifacts." + committed.filled_text(data))
     verdict_part = f"**Verdicts**\n\n{verdict_items(claims)}" if len(claims) else "This study states no claims."
     means_part = f"**Means ± SD of the reported runs**\n\n{means_markdown(means)}" if len(means) else ""
     for parts in ((head, verdict_part, means_part), (head, verdict_part), (head,)):

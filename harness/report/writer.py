@@ -262,7 +262,7 @@ def write_report(name: str, sel: Selection | None = None, *, studies_dir: Path |
         pd.concat(main.summaries.values(), ignore_index=True).to_csv(out / "summary.csv", index=False)
     figures = sections.figures(data, out) + xt_figures.figures(data, out)
     if data.recorded is None:  # from the store: the diagnostics are this report's alone (none stale);
-        _clear_diagnostics(out / "diagnostics", committed.filled_cells(data))  # from committed runs the source
+        _clear_diagnostics(out / "diagnostics", committed.kept_diagnostics(data, out))  # from committed: the source
     diags = sections.diagnostics(data, out)
     (out / "index.md").write_text(study_page(data, out, main, extra, figures, diags))
     (out / FINGERPRINT).write_text(stamp + "\n")

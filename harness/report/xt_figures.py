@@ -18,6 +18,7 @@ be read (older runs, a committed report without a store) are left blank in their
 
 from __future__ import annotations
 
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -135,9 +136,13 @@ def figures(data: ReportData, out: Path) -> list[tuple[str, Path]]:
         here = ok[ok.scene == scene]
         if "instance" in here and (here.instance > 0).any():
             continue  # a fresh instance (one run): the slices show the scenes as written
-        if len(here) and filled[here.index].all():
-            if (out / f"xt_grid_{scene}.png").is_file():  # its runs come from the committed report: its figure
-                made.append((_caption(labels.get(scene, scene)), out / f"xt_grid_{scene}.png"))
+        if len(here) and filled[here.index].all():  # its runs come from the committed report: its figure
+            name = f"xt_grid_{scene}.png"
+            source, target = data.filled.folder / name, out / name
+            if source.is_file():
+                if source.resolve() != target.resolve():
+                    shutil.copyfile(source, target)
+                made.append((_caption(labels.get(scene, scene)), target))
             continue
         seeds = sorted({int(s) for s in here.seed})[:MAX_SEEDS]
         shown = [v for v in variants if (here.variant == v).any()]
