@@ -57,6 +57,13 @@ def _csv(text: str) -> list[str]:
     return [t for t in text.split(",") if t]
 
 
+def _scenes(text: str) -> list[str]:
+    """``--scenes``: names, and ranges of a scene's instances (``studio@11..20``: spec.instances)."""
+    from harness.spec.instances import expand_ranges
+
+    return expand_ranges(_csv(text))
+
+
 def _selection_args(p: argparse.ArgumentParser, name_optional: bool = False) -> None:
     if name_optional:
         p.add_argument("name", nargs="?", default=None,
@@ -65,7 +72,8 @@ def _selection_args(p: argparse.ArgumentParser, name_optional: bool = False) -> 
         p.add_argument("name", help="study name (study list) or a study file's path (path/to/mine.yaml)")
     p.add_argument("--profile", choices=PROFILES, default=None, help="quick (default), paper or smoke")
     p.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the profile's)")
-    p.add_argument("--scenes", type=_csv, action="extend", default=[], help="comma-separated subset of scenes")
+    p.add_argument("--scenes", type=_scenes, action="extend", default=[],
+                   help="comma-separated subset of scenes; studio@11..20 names instances 11 to 20 of studio")
     p.add_argument("--variants", type=_csv, action="extend", default=[], help="comma-separated subset of variants")
     p.add_argument("overrides", nargs="*", help="Hydra overrides for every run, e.g. iterations=500")
 

@@ -34,6 +34,7 @@ runs the test reads (``spec.registration``).
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import pandas as pd
@@ -52,6 +53,49 @@ INSTANCE_TESTS = (Comparison.mean, Comparison.contrast, Comparison.interaction) 
 def instance_name(base: str, i: int) -> str:
     """``studio`` for instance 0, ``studio@2`` for instance 2."""
     return base if i == 0 else f"{base}{SEPARATOR}{i}"
+
+
+RANGE = re.compile(r"^(?P<base>.+)@(?P<first>\d+)\.\.(?P<last>\d+)$")  # studio@11..620: instances 11 to 620
+
+
+def expand_ranges(names: list[str]) -> list[str]:
+    """``--scenes`` names with ``<scene>@<first>..<last>`` written out (``studio@2..4``: studio@2,
+    studio@3, studio@4); a range that runs backwards is one ``InputError``."""
+    out = []
+    for name in names:
+        m = RANGE.match(name)
+        if m is None:
+            out.append(name)
+            continue
+        first, last = int(m["first"]), int(m["last"])
+        if last < first:
+            raise InputError(f"--scenes {name}", f"instances {first}..{last} run backwards")
+        out += [instance_name(m["base"], i) for i in range(first, last + 1)]
+    return out
+
+
+def compact_ranges(names: list[str]) -> list[str]:
+    """``names`` with every run of three or more consecutive instances of one scene as a range
+    (``expand_ranges`` reverses it); each scene's fresh instances together, in first-seen order."""
+    order: dict[tuple[str, str], list[int]] = {}  # ("plain", name) or ("fresh", base) -> instances
+    for name in names:
+        base, sep, i = name.rpartition(SEPARATOR)
+        if sep and i.isdigit() and int(i) > 0:
+            order.setdefault(("fresh", base), []).append(int(i))
+        else:
+            order.setdefault(("plain", name), [])
+    out = []
+    for (kind, name), found in order.items():
+        if kind == "plain":
+            out.append(name)
+            continue
+        found = sorted(set(found))
+        runs = [[found[0]]]
+        for i in found[1:]:
+            (runs[-1].append(i) if i == runs[-1][-1] + 1 else runs.append([i]))
+        for run in runs:
+            out += [f"{name}{SEPARATOR}{run[0]}..{run[-1]}"] if len(run) >= 3 else [instance_name(name, i) for i in run]
+    return out
 
 
 def expand(scene: StudyScene, where: str) -> list[StudyScene]:

@@ -12,6 +12,7 @@ import shlex
 from dataclasses import dataclass, field
 
 from ftgspp.errors import InputError
+from harness.spec.instances import compact_ranges
 from harness.spec.known_scene import PRESET as KNOWN_SIZE
 from harness.spec.sphere_scene import PRESET as SPHERES
 from harness.spec.study_files import require
@@ -122,7 +123,7 @@ def command_line(study: str, sel: Selection, jobs: int = 1, launcher: str = "bas
     if sel.seeds is not None:
         parts += ["--seeds", str(sel.seeds)]
     if sel.scenes:
-        parts += ["--scenes", ",".join(sel.scenes)]
+        parts += ["--scenes", ",".join(compact_ranges(list(sel.scenes)))]
     if sel.variants:
         parts += ["--variants", ",".join(sel.variants)]
     if jobs > 1:

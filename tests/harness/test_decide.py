@@ -18,6 +18,7 @@ import pytest
 import yaml
 
 from ftgspp.errors import InputError
+from harness.spec.instances import compact_ranges, expand_ranges
 from harness.analysis import sequential as Q, sequential_study as S, stats
 from harness.cli import decide as D, study
 from harness.spec import registration, study_files
@@ -352,5 +353,20 @@ def test_at_its_cap_a_claim_on_instances_names_a_fixed_design_on_new_instances()
     line = D._at_cap(d, o)
     assert f"needs {n} paired instances" in line and f"on new instances 10–{9 + n} (`instances: {10 + n}` on studio" in line
     command = line.split(": study run ", 1)[1]
-    named = command.split("--scenes ")[1].split(" ")[0].split(",")
-    assert named == [f"studio@{i}" for i in range(10, 10 + n)] and "--seeds 1" in command
+    named = command.split("--scenes ")[1].split(" ")[0]
+    assert named == f"studio@10..{9 + n}" and "--seeds 1" in command  # a range (spec.instances.compact_ranges)
+    assert expand_ranges([named]) == [f"studio@{i}" for i in range(10, 10 + n)]
+
+
+def test_scene_ranges_write_out_and_back() -> None:
+    names = ["studio", "transient@11", "long_slow@11", "transient@12", "long_slow@12", "transient@13",
+             "studio@5", "studio@6", "studio@9"]
+    short = compact_ranges(names)
+    assert short == ["studio", "transient@11..13", "long_slow@11", "long_slow@12", "studio@5", "studio@6", "studio@9"]
+    assert sorted(expand_ranges(short)) == sorted(names)
+    with pytest.raises(InputError, match="run backwards"):
+        expand_ranges(["studio@9..3"])
+    from harness.cli.study import build_parser
+
+    args = build_parser().parse_args(["run", "ablation", "--scenes", "studio,studio@2..4", "--scenes", "transient@7"])
+    assert args.scenes == ["studio", "studio@2", "studio@3", "studio@4", "transient@7"]
