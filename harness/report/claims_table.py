@@ -74,9 +74,10 @@ def needed_text(row: pd.Series) -> str:
     a = "α" if not isinstance(alpha, float) or math.isnan(alpha) or alpha >= stats.ALPHA else f"{alpha:.3g}"
     at = (f"{a}/{int(row.family_size)}" if isinstance(row.family_size, float) and row.family_size > 1 else a) + \
         ", the SD of these runs"
+    unit = "instances/arm" if "instance" in str(row.get("n", "")) else "runs/arm"  # the claim's unit (spec.instances)
     if math.isinf(row.n_needed):
-        return f"more than {stats.N_MAX} runs/arm for 80% power at the SESOI ({at})"
-    return f"≈{int(row.n_needed)} runs/arm for 80% power at the SESOI ({at})"
+        return f"more than {stats.N_MAX} {unit} for 80% power at the SESOI ({at})"
+    return f"≈{int(row.n_needed)} {unit} for 80% power at the SESOI ({at})"
 
 
 def deciding_p(row: pd.Series) -> float:

@@ -4,12 +4,13 @@ registration mark, and a one-clause reason; the details follow on the page (``re
 
 from __future__ import annotations
 
+import functools
 import math
 
 import pandas as pd
 
 from harness.analysis import stats, verdicts as V
-from harness.report.claims_table import POST_HOC, VERDICT_MARK, deciding_p, effect_text, mark_text
+from harness.report.claims_table import POST_HOC, VERDICT_MARK, deciding_p, effect_text, mark_text, needed_text
 from harness.report.fmt import p_text, text
 from harness.spec.paper_register import Statement
 
@@ -47,8 +48,10 @@ def adjusted_text(r: pd.Series) -> str:
     return f"{effect_text(shown)} at {100 * level:.4g}%"
 
 
-def reason(s: Statement, r: pd.Series | None) -> str:
-    """One clause: why the statement's verdict is what it is."""
+def reason(s: Statement, r: pd.Series | None, run_seconds: float = math.nan) -> str:
+    """One clause: why the statement's verdict is what it is; an inconclusive row says the runs a
+    fixed design would need (``claims_table.needed_text``) and, given the study's ``run_seconds``,
+    their CPU hours."""
     if s.not_tested:
         return s.not_tested
     if r is None:
@@ -65,7 +68,10 @@ def reason(s: Statement, r: pd.Series | None) -> str:
         alpha = r.get("alpha", stats.ALPHA)
         at = ("the family's α" if not isinstance(alpha, float) or math.isnan(alpha) or alpha >= stats.ALPHA
               else f"the α {alpha:.3g} the family's rows run until decided leave")
-        return f"no test rejects at {at} (Holm p = {p_text(r.p_adj)}{tost}){beyond}"
+        need = needed_text(r) if "n_needed" in r and "family_size" in r else ""
+        if need and math.isfinite(float(r.n_needed)) and run_seconds > 0:
+            need += f", {float(r.n_needed) * run_seconds / 3600:.3g} CPU h an arm at {run_seconds:g} s a run"
+        return f"no test rejects at {at} (Holm p = {p_text(r.p_adj)}{tost}){beyond}" + (f"; {need}" if need else "")
     p = p_text(deciding_p(r))
     if V.by_equivalence(r):
         return f"the equivalence test rejects (Holm TOST p = {p}): within ±SESOI{beyond}"
@@ -75,6 +81,18 @@ def reason(s: Statement, r: pd.Series | None) -> str:
         return f"the minimal-effect test puts it outside ±SESOI (Holm p = {p}){beyond}"
     side = "the claimed" if r.verdict == V.REPRODUCED else "the opposite"
     return f"the difference test rejects (Holm p = {p}), in {side} direction{beyond}"
+
+
+@functools.lru_cache(maxsize=32)
+def _run_seconds(study: str) -> float:
+    """The seconds a quick run of ``study`` takes, as its study file states (NaN: not stated)."""
+    from harness.spec.study_files import load_study
+
+    try:
+        prof = load_study(study).profiles.get("quick")
+    except Exception:  # noqa: BLE001  (a study file that no longer loads: no figure, not a failed page)
+        return math.nan
+    return float(prof.run_seconds) if prof is not None and prof.run_seconds > 0 else math.nan
 
 
 def glance_section(statements: list[Statement], rows: dict[str, tuple[str, str, pd.Series]],
@@ -94,7 +112,7 @@ def glance_section(statements: list[Statement], rows: dict[str, tuple[str, str, 
             verdict = VERDICT_MARK[r.verdict] + scope + mark_text(r)
         ours = adjusted_text(r) if r is not None else "—"
         lines.append(f"| **{s.id}**: {short_statement(s)} | {paper_number(s, r.test if r is not None else '')} |"
-                     f" {ours} | {verdict} | {text(reason(s, r))} |")
+                     f" {ours} | {verdict} | {text(reason(s, r, _run_seconds(rows[s.decided_by][0]) if r is not None else math.nan))} |")
     if not legend:
         return lines + [""]
     return lines + ["", "The adjusted interval is the one the verdict used: at the confidence of the Holm step"

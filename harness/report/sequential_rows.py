@@ -48,7 +48,7 @@ def sequential_profile(study: StudySpec, profile: str | None) -> str | None:
     return name if prof is not None and prof.sequential is not None else None
 
 
-def _text(o: S.Outcome, alpha: float, spending: str) -> str:
+def _text(o: S.Outcome, alpha: float, spending: str, d: S.Design | None = None) -> str:
     """One clause: what the replay decided for this claim."""
     c, dec = o.claim, o.decision
     rule = f"runs until decided ({S.SPENDING_NAMES[spending]} spending, α {alpha:.3g} for this study's claims" \
@@ -62,6 +62,9 @@ def _text(o: S.Outcome, alpha: float, spending: str) -> str:
         return f"{rule}: undecided at look {dec.look} ({dec.n} {c.unit}); the next look needs {o.needs}"
     need = (f"a fixed design at its share needs about {int(dec.runs_needed)} {c.unit}" if dec.runs_needed < 1e9
             else "a fixed design's count cannot be estimated from these runs")
+    hours = d.hours(int(dec.runs_needed) * c.plan.arms) if d is not None and dec.runs_needed < 1e9 else float("nan")
+    if hours == hours:  # not NaN: the profile states its run_seconds
+        need += f", {hours:.3g} CPU h at {d.profile.run_seconds:g} s a run (`study decide` prints the command)"
     return f"{rule}: stopped at its cap undecided ({dec.n} {c.unit}); {need}"
 
 
@@ -138,6 +141,6 @@ def annotate(frame: pd.DataFrame, d: S.Design | None, runs: pd.DataFrame, spendi
                 out.at[i, "method"] = f"run until decided ({test} at its latest look)"
                 out.at[i, "seq_verdict"] = o.decision.verdict if decided else V.INCONCLUSIVE
                 out.at[i, "seq_alpha"] = alpha
-                out.at[i, "seq_text"] = _text(o, alpha, spending)
+                out.at[i, "seq_text"] = _text(o, alpha, spending, d)
                 out.at[i, "seq_needed"] = needed
     return out

@@ -169,3 +169,23 @@ def test_a_study_page_names_each_family_once_with_the_alpha_its_sequential_rows_
                                              for line, g in zip(lines, groups))
     (paper,) = [line for line in lines if line.startswith("paper")]
     assert paper.endswith(f"this study's 2 rows run until decided at α {d.alpha('paper'):.3g}")
+
+
+def test_an_undecided_row_states_the_runs_and_cpu_hours_a_fixed_design_would_need() -> None:
+    """Issue 57: a row still inconclusive says what deciding it would cost, on this study's runs."""
+    # a sequential row stopped at its cap: its instances and their CPU hours at the study's run_seconds
+    df = _frame({"base": 9, "cc": 9, "gate": 9, "free": 9})  # α shares this small leave every claim at its cap
+    frame, d = _rows(df)
+    capped = [o for f in S.decide(d, df) for o in f.outcomes if o.status == Q.AT_CAP]
+    assert capped and d.profile.run_seconds > 0
+    for o in capped:
+        text = frame.set_index("id").seq_text[o.claim.spec.id]
+        n = int(o.decision.runs_needed)
+        assert f"needs about {n} {o.claim.unit}, {d.hours(n * o.claim.plan.arms):.3g} CPU h at" in text
+    # a fixed-n row: the runs (or instances) per arm and their hours at the run_seconds given
+    row = pd.Series({"verdict": V.INCONCLUSIVE, "p_adj": 0.4, "p_tost_adj": math.nan, "alpha": 0.024,
+                     "interval_note": "", "counted": True, "n_needed": 30.0, "family_size": 3.0,
+                     "n": "10 paired instances"})
+    why = glance.reason(_statement(), row, run_seconds=40.0)
+    assert "≈30 instances/arm for 80% power at the SESOI (0.024/3" in why and "0.333 CPU h an arm at 40 s a run" in why
+    assert "CPU h" not in glance.reason(_statement(), row)  # no run_seconds stated: no hours made up
