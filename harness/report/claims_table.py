@@ -117,7 +117,9 @@ def p_decided_text(row: pd.Series) -> str:
 def verdict_text(row: pd.Series) -> str:
     scope = f" [{row.scope.split(' (')[0]}]" if str(row.scope).startswith("scene-dependent") else ""
     note = f" ({row.note})" if row.note else ""
-    need = needed_text(row)
+    seq = row.get("seq_text", "")
+    # a row run until decided: its replay's clause (its look, or at its cap what a fixed design would cost)
+    need = seq if isinstance(seq, str) and seq and row.verdict == V.INCONCLUSIVE else needed_text(row)
     raw = f" [{row.raw_verdict} at raw α]" if row.raw_verdict and row.verdict in (V.EVIDENCE, V.WITHDRAWN) else ""
     beyond = row.get("interval_note", "")
     beyond = f"; {beyond}" if isinstance(beyond, str) and beyond else ""
