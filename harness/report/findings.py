@@ -5,7 +5,8 @@
 ``method_comparison.csv``, the budget pages' ``budget.csv`` and the index's ``claims.csv``) and names every value: ``ablation.claims.flow_improves.effect``,
 ``secret5.psnr.cc.studio.mean``, ``stability.psnr.diff.ftgspp.base-speed4`` (the difference of
 two cells' means), ``secret4.median.relocated_total.mcmc.studio`` (the median, ``min`` or
-``max`` over a cell's finished runs of any logged number, tabled or not),
+``max`` over a cell's finished runs of any logged number, tabled or not; a scene's fresh instances
+are one cell, ``studio@fresh``),
 ``ablation.paper.flow_improves.DyNeRF.a`` (the paper's numbers as the study file states
 them), ... ``write_findings`` saves them as JSON.
 
@@ -34,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from harness.report.results import FRESH
 
 NUMBER = re.compile(r"(?<![\w.`/#-])([+\-−×]?\d+\.\d+)(?:<!--([\w.\-|:\[\]]+)-->)?")
 WHOLE = re.compile(r"(?<![\w.,`/#×-])([+\-−]?\d{1,3}(?:,\d{3})+|[+\-−]?\d+)(?![\d.,]\d)<!--([\w.\-|:\[\]]+)-->")
@@ -88,6 +91,9 @@ def _table(study: str, path: Path, kind: str, keys: list[str], out: dict[str, fl
 def _medians(study: str, path: Path, out: dict[str, float]) -> None:
     df = pd.read_csv(path)
     done = df[df.status == "FINISHED"]
+    if "instance" in done and "instance_of" in done:  # a scene's fresh instances are one cell: <scene>@fresh
+        fresh = done.instance > 0
+        done = done.assign(scene=done.scene.where(~fresh, done.instance_of.astype(str) + FRESH))
     skip = {"seed", "budget", "iterations", "lr.scale", "torch_threads", "instance"}
     cols = [c for c in done.select_dtypes("number").columns if c not in skip and not c.startswith("system/")]
     with np.errstate(over="ignore"):  # lifetimes of ungated Gaussians reach float32's max: inf is no finding

@@ -89,3 +89,18 @@ def test_the_committed_findings_read_in_minutes_and_cite_the_adjusted_intervals(
     row = claims[(claims.study == "lpips") & (claims.id == "ssim_range2_higher")].iloc[0]
     assert row.ci_adj_level > 0.95 and f["lpips.claims.ssim_range2_higher.ci_adj_low"] == pytest.approx(row.ci_adj_low)
     assert (ROOT / "docs" / "findings-history.md").read_text().count("\n## Findings") >= 2
+
+
+def test_a_scenes_fresh_instances_are_one_cell_of_the_medians(tmp_path: Path) -> None:
+    from harness.report.findings import _medians
+
+    rows = [{"variant": "base", "scene": "studio", "instance_of": "studio", "instance": 0, "seed": s,
+             "status": "FINISHED", "psnr": 30.0 + s} for s in range(3)]
+    rows += [{"variant": "base", "scene": f"studio@{i}", "instance_of": "studio", "instance": i, "seed": 0,
+              "status": "FINISHED", "psnr": 20.0 + i} for i in range(1, 6)]
+    pd.DataFrame(rows).to_csv(tmp_path / "runs.csv", index=False)
+    out: dict[str, float] = {}
+    _medians("mine", tmp_path / "runs.csv", out)
+    assert out["mine.median.psnr.base.studio"] == 31.0  # the scene as written: its seeds
+    assert (out["mine.median.psnr.base.studio@fresh"], out["mine.min.psnr.base.studio@fresh"]) == (23.0, 21.0)
+    assert not [k for k in out if "@" in k and not k.endswith("@fresh")]  # no cell per instance
