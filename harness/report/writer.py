@@ -56,6 +56,7 @@ from harness.report import (
 )
 from harness.report.results import ReportData, collect
 from harness.spec.runs import Selection, command_line, study_ref
+from harness.spec.study_schema import plural
 from harness.tracking.conventions import browse_command
 from harness.tracking.provenance import all_current, checkout_fingerprint, git_sha
 from harness.tracking.store import display_uri
@@ -204,7 +205,14 @@ def _grid(n_runs: int, df: pd.DataFrame) -> str:
     v, sc, se = df.variant.nunique(), df.scene.nunique(), df.seed.nunique()
     if n_runs == v * sc * se:
         return f"= {v} variants × {sc} scenes × {se} seeds"
-    return f"over {v} variants, {sc} scenes and {se} seeds (not every variant on every scene and seed)"
+    drawn = ""
+    if "instance" in df and (df.instance > 0).any():  # spec.instances: a scene and its fresh draws
+        sc = df.instance_of.nunique()
+        k = df[df.instance > 0].groupby("instance_of").instance.nunique()
+        each = (f"{plural(int(k.iloc[0]), 'fresh instance')} of each" if k.nunique() == 1
+                else f"{plural(int(k.sum()), 'fresh instance')} of {len(k)} of them")
+        drawn = f" ({each}, one seed an instance)"
+    return (f"over {v} variants, {sc} scenes{drawn} and {se} seeds (not every variant on every scene and seed)")
 
 
 FINGERPRINT = ".fingerprint"  # what a report was made from: its runs and the code that wrote it

@@ -391,3 +391,13 @@ def test_a_committed_report_written_before_instances_is_read_with_the_fresh_runs
     with pytest.raises(ValueError, match="0 of the 4 runs"):
         claim_compare.compare(full, c, c.scenes)
     assert with_fresh_planned(full, study).equals(full)  # nothing more to add
+
+
+def test_a_pages_run_count_names_scenes_and_their_fresh_instances_not_every_draw_a_scene() -> None:
+    from harness.report.writer import _grid
+
+    rows = [("base", "studio", s, "studio", 0) for s in range(3)] + \
+        [(v, f"{b}@{i}", 0, b, i) for v in ("base", "cc") for b in ("studio", "drift") for i in (1, 2)]
+    df = pd.DataFrame(rows, columns=["variant", "scene", "seed", "instance_of", "instance"])
+    assert _grid(len(df), df) == ("over 2 variants, 2 scenes (2 fresh instances of each, one seed an instance) and"
+                                  " 3 seeds (not every variant on every scene and seed)")
