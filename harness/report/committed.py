@@ -150,32 +150,28 @@ def filled_text(data: ReportData) -> str:
             " and figures are that report's.")
 
 
-def filled_diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[Path]]]:
-    """``diagnostics`` of the cells whose finished runs all come from the committed report
-    (``fill_missing``): that report's files, with the seed its page named."""
-    cells = filled_cells(data)
+def filled_diagnostics(data: ReportData, out: Path, cells: set[tuple[str, str]]) -> list[tuple[str, str, int, list[Path]]]:
+    """``diagnostics`` of ``cells``, those whose finished runs all come from the committed report
+    (``filled_cells``): that report's files, with the seed its page named."""
     if not cells:
         return []
     done = data.df[data.df.status == "FINISHED"]
     only = done[[cell in cells for cell in zip(done.variant, done.scene)]]
-    if "instance" in only:
-        only = only[only.instance == 0]  # a fresh instance (one run) has the figures of its scene as written
     return diagnostics(dataclasses.replace(data, df=only, recorded=read_recorded(data.filled.folder)), out)
 
 
 def filled_rows(data: ReportData) -> pd.Series:
     """Which rows of ``data.df`` were read from the committed report (``fill_missing``)."""
-    filled = getattr(data, "filled", None)  # a report's data without the field (a test's stand-in): none
-    if filled is None:
+    if data.filled is None:
         return pd.Series(False, index=data.df.index, dtype=bool)
-    keys = filled.keys
+    keys = data.filled.keys
     return pd.Series([k in keys for k in data.df[KEY_COLUMNS].itertuples(index=False, name=None)],
                      index=data.df.index, dtype=bool)
 
 
 def filled_cells(data: ReportData) -> set[tuple[str, str]]:
     """(variant, scene) cells whose finished runs all come from the committed report."""
-    if getattr(data, "filled", None) is None:
+    if data.filled is None:
         return set()
     done = data.df[data.df.status == "FINISHED"]
     mask = filled_rows(data)[done.index]

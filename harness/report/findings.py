@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from harness.report.results import FRESH
+from harness.report.results import fresh_as_one
 
 NUMBER = re.compile(r"(?<![\w.`/#-])([+\-−×]?\d+\.\d+)(?:<!--([\w.\-|:\[\]]+)-->)?")
 WHOLE = re.compile(r"(?<![\w.,`/#×-])([+\-−]?\d{1,3}(?:,\d{3})+|[+\-−]?\d+)(?![\d.,]\d)<!--([\w.\-|:\[\]]+)-->")
@@ -90,10 +90,7 @@ def _table(study: str, path: Path, kind: str, keys: list[str], out: dict[str, fl
 
 def _medians(study: str, path: Path, out: dict[str, float]) -> None:
     df = pd.read_csv(path)
-    done = df[df.status == "FINISHED"]
-    if "instance" in done and "instance_of" in done:  # a scene's fresh instances are one cell: <scene>@fresh
-        fresh = done.instance > 0
-        done = done.assign(scene=done.scene.where(~fresh, done.instance_of.astype(str) + FRESH))
+    done = fresh_as_one(df[df.status == "FINISHED"])  # a scene's fresh instances are one cell: <scene>@fresh
     skip = {"seed", "budget", "iterations", "lr.scale", "torch_threads", "instance"}
     cols = [c for c in done.select_dtypes("number").columns if c not in skip and not c.startswith("system/")]
     with np.errstate(over="ignore"):  # lifetimes of ungated Gaussians reach float32's max: inf is no finding

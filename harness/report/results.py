@@ -74,10 +74,7 @@ class ReportData:
         (``spec.instances``: one run each) as one column, ``<scene>@fresh``, whose spread is the
         instances', beside the scene as written (the pilot's seeds). ``df`` itself when the study
         draws no instances."""
-        if "instance" not in self.df or not (self.df.instance > 0).any():
-            return self.df
-        fresh = self.df.instance > 0
-        return self.df.assign(scene=self.df.scene.where(~fresh, self.df.instance_of.astype(str) + FRESH))
+        return fresh_as_one(self.df)
 
     def shown_order(self) -> tuple[list[str], list[str]]:
         """``order`` of ``shown``: each scene as written, then its fresh instances' column."""
@@ -121,6 +118,15 @@ class Recorded:
     parents: tuple[str, ...] = ()  # parent run ids (8 characters)
     invocations: tuple[str, ...] = ()
     diagnostic_seeds: tuple[tuple[str, str, int], ...] = ()  # (variant, scene, seed) whose figures it shows
+
+
+def fresh_as_one(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` with each scene's fresh instances (``spec.instances``) named as one scene,
+    ``<scene>@fresh``; ``df`` itself when it has none."""
+    if "instance" not in df or not (df.instance > 0).any():
+        return df
+    fresh = df.instance > 0
+    return df.assign(scene=df.scene.where(~fresh, df.instance_of.astype(str) + FRESH))
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import fnmatch
 import math
 import time
@@ -293,11 +294,11 @@ def diagnostics(data: ReportData, out: Path) -> list[tuple[str, str, int, list[P
     patterns = list(data.study.diagnostics)  # a study that names none copies none (they are in the store)
     if data.store is None or not patterns:
         return []
-    got = committed.filled_diagnostics(data, out)  # cells whose runs the store lacks: the committed files
+    if "instance" in data.df:  # a fresh instance (one run) has the figures of its scene as written
+        data = dataclasses.replace(data, df=data.df[data.df.instance == 0])
     skip = committed.filled_cells(data)
+    got = committed.filled_diagnostics(data, out, skip)  # cells whose runs the store lacks: the committed files
     ok = data.df[data.df.status == "FINISHED"].sort_values("seed")
-    if "instance" in ok:
-        ok = ok[ok.instance == 0]  # a fresh instance (one run) has the figures of its scene as written
     for (v, s), sub in ok.groupby(["variant", "scene"], sort=False):
         if (v, s) in skip:
             continue

@@ -101,7 +101,7 @@ def test_a_study_report_draws_one_grid_per_scene_from_the_runs_artifacts(tmp_pat
     data = SimpleNamespace(
         study=SimpleNamespace(name="secret4", plots=(Plot.strip, Plot.xt_grid)), store=SimpleNamespace(
             copy_artifacts=copy_artifacts), df=df, order=lambda: (["mcmc", "exact_copy"], ["studio", "long_slow"]),
-        labels=lambda: {"studio": "studio", "long_slow": "long, slow (4 s)"})
+        labels=lambda: {"studio": "studio", "long_slow": "long, slow (4 s)"}, filled=None)
     made = xt_figures.figures(data, tmp_path)
     assert [p.name for _, p in made] == ["xt_grid_studio.png", "xt_grid_long_slow.png"]
     assert all(p.is_file() for _, p in made) and all(problems == [] for _, _, problems in drawn)
