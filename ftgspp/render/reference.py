@@ -44,12 +44,12 @@ def tile_ranges(means2d: Tensor, radii: Tensor, width: int, height: int) -> tupl
     of gsplat's ``IntersectTile.cu`` (on its pixel coordinates, ours + 0.5).
     """
     tiles_x, tiles_y = tile_grid(width, height)
-    ts = torch.tensor(float(TILE_SIZE), dtype=torch.float32)
+    ts = torch.tensor(float(TILE_SIZE), dtype=torch.float32, device=means2d.device)
     centre = (means2d.detach().to(torch.float32) + PIXEL_OFFSET) / ts  # [N, 2] in tiles
     r = radii.to(torch.float32) / ts  # [N, 2]
     lo = torch.floor(centre - r)
     hi = torch.ceil(centre + r)
-    limit = torch.tensor([tiles_x, tiles_y], dtype=torch.float32)
+    limit = torch.tensor([tiles_x, tiles_y], dtype=torch.float32, device=means2d.device)
     lo = torch.minimum(lo.clamp_min(0), limit).long()
     hi = torch.minimum(hi.clamp_min(0), limit).long()
     culled = (radii <= 0).any(dim=-1)

@@ -347,3 +347,13 @@ def test_render_backend_dispatch(monkeypatch) -> None:
         render(*args, backend="cpu")
     assert resolve_backend("auto", torch.device("cpu")) == "reference"
     assert render(*args, backend="auto").image.shape == (H, W, 3)
+
+
+def test_tile_ranges_builds_its_constants_on_the_inputs_device():
+    """The GPU check's parity failed on CUDA ("cuda:0 and cpu") because the tile limits were a CPU
+    tensor; the meta device shows the same mismatch without a GPU."""
+    from ftgspp.render.reference import tile_ranges
+
+    means2d = torch.zeros(5, 2, device="meta")
+    radii = torch.ones(5, 2, dtype=torch.int32, device="meta")
+    assert all(t.device.type == "meta" for t in tile_ranges(means2d, radii, 64, 48))
