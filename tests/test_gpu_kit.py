@@ -164,3 +164,28 @@ def test_the_quick_verdict_and_a_skipped_step(tmp_path) -> None:
     assert chk.results["quick ftgs"]["passed"] and not chk.results["quick stg"]["passed"]
     assert finish(chk) == 1
     assert "difference -1.00 dB" in (tmp_path / "out" / "summary.txt").read_text()
+
+
+def test_the_cpu_quick_runs_are_capped_to_a_quarter_of_the_cores(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """On the H200 both uncapped CPU runs took 16 Numba threads beside nvcc and trained at 3.3 it/s;
+    each now gets a quarter of the cores, through torch's ``threads`` and Numba's variable."""
+    import harness.cli.check_gpu as check_gpu
+
+    calls = []
+
+    class Recorder:
+        work = tmp_path
+
+        def run(self, cmd, log, cap, env=None):
+            calls.append((cmd, env))
+            return 1, ""
+
+    import harness.cli.gpu_plan as gpu_plan
+
+    monkeypatch.setattr(gpu_plan.os, "cpu_count", lambda: 16)
+    for backend in ("cpu", "gsplat"):
+        check_gpu.train_quick(Recorder(), tmp_path / "scene", "ftgs", backend, 0, 10)
+    (cpu_cmd, cpu_env), (gs_cmd, gs_env) = calls
+    assert "threads=4" in cpu_cmd and cpu_env == {"NUMBA_NUM_THREADS": "4", "OMP_NUM_THREADS": "4"}
+    assert gs_env is None and not any(a.startswith("threads=") for a in gs_cmd)
+    assert check_gpu.cpu_run_threads(2) == 1

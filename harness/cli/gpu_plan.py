@@ -7,6 +7,7 @@ same plan without a GPU.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -20,9 +21,16 @@ TRAIN_500K = ("676", "508")  # bench train at 500k: a quarter of DyNeRF (its sce
 REPO = Path(__file__).resolve().parents[2]
 
 
+def cpu_run_threads(cores: int | None = None) -> int:
+    """Torch and Numba threads of each CPU quick run: a quarter of the cores (4 on the device's 16),
+    so the two runs leave half the machine to gsplat's compile and runs."""
+    return max(1, (cores or os.cpu_count() or 4) // 4)
+
+
 def quick_overrides(scene: Path, model: str, backend: str, seed: int) -> list[str]:
-    """``ftgspp train`` overrides of one quick run (``backend`` gsplat: on cuda; cpu: 4 threads)."""
-    device = ["device=cuda"] if backend == "gsplat" else ["device=cpu", "threads=4"]
+    """``ftgspp train`` overrides of one quick run (``backend`` gsplat: on cuda; cpu: ``cpu_run_threads``
+    torch threads, Numba's set by ``check_gpu.train_quick``)."""
+    device = ["device=cuda"] if backend == "gsplat" else ["device=cpu", f"threads={cpu_run_threads()}"]
     return ["profile=quick", f"model={model}", f"data.path={scene}", f"backend={backend}", *device, f"seed={seed}"]
 
 
@@ -88,19 +96,21 @@ class Check:
     def timeout(self, cap: float) -> float:
         return max(1.0, min(cap, self.left() - 15))
 
-    def start(self, cmd: list[str], log: str) -> subprocess.Popen:
-        """Start ``cmd`` in the repository with its output in ``work/<log>``."""
+    def start(self, cmd: list[str], log: str, env: dict[str, str] | None = None) -> subprocess.Popen:
+        """Start ``cmd`` in the repository with its output in ``work/<log>`` (``env``: variables
+        added to this process's environment)."""
         if self.closed:
             raise RuntimeError("the check has finished")
         with open(self.work / log, "w") as f:
-            proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, cwd=REPO)
+            proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, cwd=REPO,
+                                    env={**os.environ, **env} if env else None)
         self.procs.append(proc)
         return proc
 
-    def run(self, cmd: list[str], log: str, cap: float) -> tuple[int, str]:
+    def run(self, cmd: list[str], log: str, cap: float, env: dict[str, str] | None = None) -> tuple[int, str]:
         """Run ``cmd`` for at most ``cap`` seconds (and the budget); (exit status, 124 on
         timeout; its output)."""
-        proc = self.start(cmd, log)
+        proc = self.start(cmd, log, env)
         try:
             rc = proc.wait(timeout=self.timeout(cap))
         except subprocess.TimeoutExpired:
