@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import math
+from pathlib import Path
 
 import pandas as pd
 
@@ -84,21 +85,24 @@ def reason(s: Statement, r: pd.Series | None, run_seconds: float = math.nan) -> 
 
 
 @functools.lru_cache(maxsize=32)
-def _run_seconds(study: str) -> float:
-    """The seconds a quick run of ``study`` takes, as its study file states (NaN: not stated)."""
+def _run_seconds(study: str, studies_dir: Path | None = None) -> float:
+    """The seconds a quick run of ``study`` takes, as its study file in ``studies_dir`` states
+    (NaN: not stated)."""
     from harness.spec.study_files import load_study
 
     try:
-        prof = load_study(study).profiles.get("quick")
+        prof = load_study(study, studies_dir).profiles.get("quick")
     except Exception:  # noqa: BLE001  (a study file that no longer loads: no figure, not a failed page)
         return math.nan
     return float(prof.run_seconds) if prof is not None and prof.run_seconds > 0 else math.nan
 
 
 def glance_section(statements: list[Statement], rows: dict[str, tuple[str, str, pd.Series]],
-                   title: str = "Every statement at a glance", legend: bool = True) -> list[str]:
+                   title: str = "Every statement at a glance", legend: bool = True,
+                   studies_dir: Path | None = None) -> list[str]:
     """A table of one line per statement (its details follow below): the page opens with the paper's
-    statements, then the metric conventions'."""
+    statements, then the metric conventions'; ``studies_dir``: where the study files are (each
+    undecided row's CPU hours)."""
     if not statements:
         return []
     lines = [f"## {title}", "",
@@ -111,8 +115,9 @@ def glance_section(statements: list[Statement], rows: dict[str, tuple[str, str, 
             scope = " — scene-dependent" if str(r.scope).startswith("scene-dependent") else ""
             verdict = VERDICT_MARK[r.verdict] + scope + mark_text(r)
         ours = adjusted_text(r) if r is not None else "—"
+        seconds = _run_seconds(rows[s.decided_by][0], studies_dir) if r is not None else math.nan
         lines.append(f"| **{s.id}**: {short_statement(s)} | {paper_number(s, r.test if r is not None else '')} |"
-                     f" {ours} | {verdict} | {text(reason(s, r, _run_seconds(rows[s.decided_by][0]) if r is not None else math.nan))} |")
+                     f" {ours} | {verdict} | {text(reason(s, r, seconds))} |")
     if not legend:
         return lines + [""]
     return lines + ["", "The adjusted interval is the one the verdict used: at the confidence of the Holm step"

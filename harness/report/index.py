@@ -184,9 +184,11 @@ def _withdrawn_section(entries: list[StudyClaims]) -> list[str]:
 
 def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], missing: list[str],
                    current: str = "", forest: str = "", register: Register | None = None,
-                   todo: tuple[int, str] = (0, ""), answers: list[str] | None = None) -> str:
+                   todo: tuple[int, str] = (0, ""), answers: list[str] | None = None,
+                   studies_dir: Path | None = None) -> str:
     """The page (module docstring); ``entries`` carry frames already decided over every study;
-    ``todo``: the runs ``make reports`` would run and their expected time (``refresh``)."""
+    ``todo``: the runs ``make reports`` would run and their expected time (``refresh``);
+    ``studies_dir``: where the study files are (the design paragraph, each row's seconds a run)."""
     register = register or Register()
     frames = [e.frame.assign(study=e.study) for e in entries if not e.frame.empty]
     allf = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=[*V.COLUMNS, "study"])
@@ -194,11 +196,11 @@ def index_markdown(entries: list[StudyClaims], charts: list[tuple[str, str]], mi
     stale = stale_studies(entries, current) if current else []
     prints = sorted({f for e in entries for f in e.fingerprints})
     lines = ["# The answers: every statement of the paper on our runs", "",
-             *(stale_note(prints, current, "make reports", *todo) if current else []), *design_paragraph()]
+             *(stale_note(prints, current, "make reports", *todo) if current else []), *design_paragraph(studies_dir)]
     paper = [s for s in register.statements if s.family == "paper"]
-    lines += glance_section(paper, rows, f"The paper's {len(paper)} statements at a glance")
+    lines += glance_section(paper, rows, f"The paper's {len(paper)} statements at a glance", studies_dir=studies_dir)
     lines += glance_section([s for s in register.statements if s.family != "paper"], rows,
-                            "Metric conventions at a glance", legend=False)
+                            "Metric conventions at a glance", legend=False, studies_dir=studies_dir)
     lines += ["Regenerate with `make reports` (or `study index --profile quick --out reports`). One row per statement of the paper"
               " (`studies/_paper.yaml`), counted once and decided by one claim; each claim's smallest effect of"
               " interest (SESOI) is its metric's, fixed once per metric on its own scale (docs/sesoi.md); the"
@@ -325,7 +327,7 @@ def write_claims_index(reports_root: Path = USER_REPORTS, studies_dir: Path | No
     path = root / "index.md"
     current = checkout_fingerprint()
     path.write_text(index_markdown(entries, charts, missing, current, FOREST if forest else "", register,
-                                   refresh(entries, current, studies_dir), answers_markdown(root)))
+                                   refresh(entries, current, studies_dir), answers_markdown(root), studies_dir))
     write_findings(root, studies_dir)  # every number FINDINGS.md may cite (report.findings)
     n = sum(len(e.frame) for e in entries)
     echo(f"index: {len(register.statements)} statements and {n} claims over {len(entries)} studies with runs"

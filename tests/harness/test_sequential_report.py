@@ -189,3 +189,14 @@ def test_an_undecided_row_states_the_runs_and_cpu_hours_a_fixed_design_would_nee
     why = glance.reason(_statement(), row, run_seconds=40.0)
     assert "≈30 instances/arm for 80% power at the SESOI (0.024/3" in why and "0.333 CPU h an arm at 40 s a run" in why
     assert "CPU h" not in glance.reason(_statement(), row)  # no run_seconds stated: no hours made up
+
+
+def test_the_cpu_hours_of_an_undecided_row_come_from_the_study_folder_the_index_reads(tmp_path) -> None:
+    """A study in another folder than studies/ states its own seconds a run (it was ignored before)."""
+    import yaml
+
+    from tests.harness.fakes import MINI_STUDY
+
+    (tmp_path / "mini.yaml").write_text(yaml.safe_dump(MINI_STUDY))
+    assert glance._run_seconds("mini", tmp_path) == 5.0
+    assert math.isnan(glance._run_seconds("mini", tmp_path / "elsewhere"))  # no such study there: no figure
