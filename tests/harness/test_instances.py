@@ -310,7 +310,10 @@ def test_the_committed_reports_list_every_counted_method_claim() -> None:
     spans = instance_span.committed_spans(ROOT / "reports", ROOT / "studies")
     assert len(spans) and list(spans.columns) == instance_span.COLUMNS
     assert not spans.study.isin(instance_span.RUN_TO_RUN_STUDIES).any()
-    assert (spans[spans.runs > 0].instances >= 1).all()
+    # every run read lies on some instance (a claim over several scenes spans the fewest of any of them,
+    # 0 while one scene's fresh instances have not run yet)
+    ran = spans[spans.runs > 0]
+    assert all(max(int(part.rpartition(": ")[2]) for part in row.split(", ")) >= 1 for row in ran.per_scene)
 
 
 def test_registration_is_judged_on_the_runs_the_test_reads_not_the_pilots() -> None:
