@@ -5,7 +5,9 @@
   over the pairs tried.
 - ``dissociated``: on some scene, an ordered pair (x, y): x not worse than y in ``metric`` by
   the SESOI (one-sided t) yet worse in ``versus`` (one-sided paired t); p per pair = the larger,
-  Bonferroni over every ordered pair tried.
+  Bonferroni over every ordered pair tried. Its power (``IUPower``) is the intersection–union
+  bound of ``stats.iu_power`` at the best pair's SDs: equal rendering against the −SESOI margin,
+  and ``versus`` worse by that metric's own SESOI (``spec.metrics.sesoi``), each at α/pairs.
 
 Both search every pair of the study's variants (``claim.among`` when it names some) with at
 least 3 seeds that logged both metrics, paired by seed on one scene (all instances of a scene
@@ -17,13 +19,31 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
+import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
 from harness.analysis import stats
 from harness.analysis.claim_tests import CONFIDENCE, Result, t_ci, t_interval, wide
 from harness.spec.study_schema import ClaimSpec
+
+
+@dataclass(frozen=True)
+class IUPower:
+    """What a dissociated claim's runs-needed figure reads (``verdicts`` row ``power_param``):
+    the two one-sided tests' standardised effects of interest and the ordered pairs tried."""
+
+    effects: tuple[float, float]  # (SESOI of the metric / SD of its differences, SESOI of versus / its SD)
+    pairs: int
+
+    def needed(self, alpha: float) -> float:
+        """Seeds a pair needs for 80% power when the claim holds ``alpha`` (Bonferroni over the pairs)."""
+        return stats.n_for_iu(self.effects, alpha / self.pairs)
+
+    def __str__(self) -> str:
+        return f"d {self.effects[0]:.3g} and {self.effects[1]:.3g}, {self.pairs} pairs"
 
 
 def seed_aligned(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...], pairs: Callable
@@ -63,7 +83,7 @@ def dissociated(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> 
     """On some scene, an ordered pair (x, y): x is not worse than y in ``metric`` by the SESOI
     (one-sided t against −SESOI on the better side) yet worse in ``versus`` (one-sided paired t);
     p per pair = the larger of the two, Bonferroni over every ordered pair tried."""
-    from harness.spec.metrics import lower_is_better
+    from harness.spec.metrics import lower_is_better, sesoi
 
     sign_m = -1.0 if lower_is_better(claim.metric) else 1.0  # turns "better" into "higher"
     sign_v = -1.0 if lower_is_better(claim.versus) else 1.0
@@ -79,10 +99,17 @@ def dissociated(df: pd.DataFrame, claim: ClaimSpec, scenes: tuple[str, ...]) -> 
     p, scene, vx, vy, dm, dv, p_not_worse = min(tried, key=lambda t: t[0])
     raw = sign_v * dv  # in the metric's own direction
     res = sps.ttest_1samp(raw, 0.0)
+    power = IUPower((claim.sesoi / _sd(dm), sesoi(claim.versus)[0] / _sd(dv)), len(tried))
     return Result(f"existential: per scene and ordered variant pair, {claim.metric} not worse by ±{claim.sesoi:g}"
                   f" (one-sided t) and {claim.versus} worse (one-sided paired t); p = the larger, Bonferroni over"
                   f" {len(tried)} pairs", f"{len(dv)} pairs", float(raw.mean()), t_ci(res, CONFIDENCE),
-                  t_ci(res, 0.90), "t", float(res.statistic), min(1.0, p * len(tried)), math.nan, ("", math.nan),
+                  t_ci(res, 0.90), "t", float(res.statistic), min(1.0, p * len(tried)), math.nan, ("iu", power),
                   f"best pair {vx} vs {vy} on {scene}: {claim.metric} {sign_m * dm.mean():+.3g} (not worse by"
                   f" {claim.sesoi:g}: p = {p_not_worse:.2g}), {claim.versus} {raw.mean():+.3g} (worse)",
                   interval=t_interval(res))
+
+
+def _sd(x: object) -> float:
+    """Sample SD (NaN when it is zero: no spread, no power figure)."""
+    sd = float(np.std(np.asarray(x, float), ddof=1))
+    return sd if sd > 0 else math.nan

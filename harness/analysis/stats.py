@@ -14,6 +14,9 @@ either already provides).
 - ``n_for_t``: runs per arm (or pairs) for 80% power of the test actually used, at the
   smallest effect of interest and at the α the claim faces — prospective, never from the
   observed effect (``statsmodels.stats.power``);
+- ``iu_power`` / ``n_for_iu``: the power of an intersection–union test (both of two one-sided
+  paired t-tests must reject: the existential ``dissociated`` claim), bounded below by
+  p₁ + p₂ − 1 (Fréchet), which needs no assumption on how the two metrics correlate;
 - ``pitman_morgan``: the spread of two *paired* samples (runs sharing a seed): SD(a)/SD(b) = r
   ⇔ corr(a + r·b, a − r·b) = 0, Pearson's exact test under normality
   (``scipy.stats.pearsonr``), two-sided against r = 1 and one-sided at ±r for equivalence;
@@ -31,6 +34,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -159,15 +163,7 @@ def n_for_t(sesoi: float, sd: float, paired: bool, alpha: float = ALPHA) -> floa
             # where the power is 1 to many digits
             return math.isnan(power) or power >= POWER
 
-        if not enough(N_MAX):
-            return math.inf
-        lo, hi = 1, 2  # power at lo is below POWER (a t-test needs 2 runs an arm)
-        while not enough(hi):
-            lo, hi = hi, min(2 * hi, N_MAX)
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            lo, hi = (lo, mid) if enough(mid) else (mid, hi)
-    return float(hi)
+        return _smallest(enough, 1)  # power at 1 is below POWER (a t-test needs 2 runs an arm)
 
 
 def levene_median_p(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -288,3 +284,42 @@ def paper_evidence(a: float, b: float, a_std: float | None, b_std: float | None,
         res = stats.ttest_ind_from_stats(a, run_sd, run_sd_n, b, run_sd, run_sd_n, equal_var=False)
         return PaperEvidence(effect, float(res.pvalue), f"its run-to-run SD {run_sd:g} ({run_sd_n} runs) for both")
     return PaperEvidence(effect, math.nan, "no spread reported")
+
+
+def iu_power(effects: tuple[float, float], n: int, alpha: float) -> float:
+    """Lower bound on the power of an intersection–union test of two one-sided one-sample (paired)
+    t-tests, each at ``alpha``, with ``n`` pairs, when the standardised effects (effect/SD) on
+    their alternative side are ``effects``: p₁ + p₂ − 1 (Fréchet; exact when one test is
+    certain to reject), whatever the correlation between the two statistics (statsmodels)."""
+    from statsmodels.stats.power import TTestPower
+
+    solver = TTestPower()
+    p = [float(solver.power(d, n, alpha, alternative="larger")) for d in effects]
+    return max(0.0, p[0] + p[1] - 1.0)
+
+
+def n_for_iu(effects: tuple[float, float], alpha: float) -> float:
+    """Pairs for ``iu_power`` ≥ 80%; NaN when an effect is not positive and finite, inf past N_MAX."""
+    if not all(d > 0 and math.isfinite(d) for d in effects):
+        return math.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        def enough(n: int) -> bool:
+            power = iu_power(effects, n, alpha)
+            return math.isnan(power) or power >= POWER
+
+        return _smallest(enough, 2)  # the search needs 3 seeds a pair: 2 is taken as too few
+
+
+def _smallest(enough: Callable[[int], bool], lo: int) -> float:
+    """The smallest n in (lo, N_MAX] with ``enough(n)`` (monotone in n), by doubling then bisection;
+    inf when N_MAX is not enough."""
+    if not enough(N_MAX):
+        return math.inf
+    hi = lo + 1
+    while not enough(hi):
+        lo, hi = hi, min(2 * hi, N_MAX)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if enough(mid) else (mid, hi)
+    return float(hi)

@@ -198,7 +198,10 @@ def counts(row: pd.Series) -> bool:
 
 def _needed(row: pd.Series, alpha: float) -> float:
     """Runs per arm (pairs) for 80% power at the SESOI and ``alpha``, for the test the row used."""
-    kind, param = row.power_test, float(row.power_param)
+    kind, param = row.power_test, row.power_param
+    if kind == "iu":  # an existential dissociation: ``existential.IUPower``
+        return param.needed(alpha)
+    param = float(param)
     if kind in ("t_paired", "t_ind"):
         return stats.n_for_t(row.sesoi, param, paired=kind == "t_paired", alpha=alpha)
     if kind == "pm":

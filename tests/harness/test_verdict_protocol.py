@@ -287,3 +287,28 @@ def test_a_broken_register_is_one_line(tmp_path: Path, change, words: str):
         register = load_register(tmp_path)
         check_register(register, {n: load_study(n, tmp_path) for n in list_studies(tmp_path)}, "_paper.yaml")
     assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_an_undecided_dissociation_prices_its_runs_by_the_intersection_union_power():
+    """An existential dissociation has a runs-needed figure (issue 57): the seeds a pair needs for
+    both one-sided tests to reject together with 80% power, checked by simulating the test itself."""
+    rng = np.random.default_rng(13)
+    base = 30 + rng.normal(0, 0.2, 5)
+    df = runs({("baseline", "fast"): base, ("flow", "fast"): base + rng.normal(0, 0.15, 5)})
+    df["motion_epe_dynamic"] = 1.0 + rng.normal(0, 0.08, len(df))  # no dissociation to find
+    row = V.decide(V.evaluate(df, [claim(test="dissociated", expect="exists", versus="motion_epe_dynamic",
+                                         a="", b="")])).iloc[0]
+    assert row.verdict == V.INCONCLUSIVE and row.power_test == "iu" and row.power_param.pairs == 2
+    need = row.n_needed
+    assert np.isfinite(need) and need > 5
+    assert need == row.power_param.needed(ALPHA)  # the family is this one row: the claim holds α
+    # the simulated power of the intersection-union test at that count (independent metrics, the
+    # effects of interest: equal rendering, motion worse by its SESOI), 4000 draws: MC SE ≤ 0.007
+    d_m, d_v = row.power_param.effects
+    n, level, draws = int(need), ALPHA / 2, 4000
+    sim = np.random.default_rng(14)
+    x, y = sim.normal(0, 1 / d_m, (draws, n)), sim.normal(-1, 1 / d_v, (draws, n))
+    p1 = stats.ttest_1samp(x, -1, axis=1, alternative="greater").pvalue
+    p2 = stats.ttest_1samp(y, 0, axis=1, alternative="less").pvalue
+    assert np.mean(np.maximum(p1, p2) < level) >= 0.8
+    assert S.iu_power((d_m, d_v), n - 1, level) < 0.8 <= S.iu_power((d_m, d_v), n, level)  # the smallest count
