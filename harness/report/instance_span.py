@@ -37,7 +37,7 @@ from harness.spec.study_schema import ClaimGroup, ClaimSpec, Unit
 
 METHOD_GROUPS = (ClaimGroup.paper, ClaimGroup.extension)
 RUN_TO_RUN_STUDIES = ("secret5", "secret5_cc")  # the paper's secret 5 protocol: one fixed scene, seeds vary
-COLUMNS = ["study", "claim", "group", "scenes", "instances", "per_scene", "runs"]
+COLUMNS = ["study", "claim", "group", "scenes", "instances", "most_instances", "per_scene", "runs"]
 
 
 def run_to_run(study: str, claim: ClaimSpec) -> bool:
@@ -57,7 +57,7 @@ def claim_spans(study: str, claims: tuple[ClaimSpec, ...], runs: pd.DataFrame | 
                 register: Register) -> list[dict]:
     """One row (``COLUMNS``) per counted method claim of ``study``: ``instances``, the fewest
     instances any of its scenes has among its tested runs (0 when a scene has none, or there
-    are no runs); ``per_scene``, each scene's count (``studio: 3, exposure_drift: 1``); ``runs``,
+    are no runs); ``most_instances``, the most any of them has; ``per_scene``, each scene's count (``studio: 3, exposure_drift: 1``); ``runs``,
     its finished runs. ``runs``: the study's runs frame, with or without instance columns."""
     rows = []
     for c in claims:
@@ -67,7 +67,7 @@ def claim_spans(study: str, claims: tuple[ClaimSpec, ...], runs: pd.DataFrame | 
         spanned = instances_spanned(ran) if len(ran) else pd.Series(dtype=int)
         counts = {s: int(spanned.get(s, 0)) for s in c.scenes}
         rows.append({"study": study, "claim": c.id, "group": str(c.group), "scenes": ", ".join(c.scenes),
-                     "instances": min(counts.values(), default=0),
+                     "instances": min(counts.values(), default=0), "most_instances": max(counts.values(), default=0),
                      "per_scene": ", ".join(f"{s}: {k}" for s, k in counts.items()), "runs": len(ran)})
     return rows
 
