@@ -75,7 +75,7 @@ def needed_text(row: pd.Series) -> str:
     at = (f"{a}/{int(row.family_size)}" if isinstance(row.family_size, float) and row.family_size > 1 else a) + \
         ", the SD of these runs"
     if row.get("power_test") == "iu":  # an existential dissociation: both one-sided tests, Bonferroni over its pairs
-        at = at.replace(", the SD", f" over {row.power_param.pairs} pairs, both tests; the SDs", 1)
+        at = at.replace(", the SD", " and the pairs searched, both tests; the SDs", 1)
     unit = "instances/arm" if "instance" in str(row.get("n", "")) else "runs/arm"  # the claim's unit (spec.instances)
     if math.isinf(row.n_needed):
         return f"more than {stats.N_MAX} {unit} for 80% power at the SESOI ({at})"

@@ -304,7 +304,11 @@ def test_an_undecided_dissociation_prices_its_runs_by_the_intersection_union_pow
     assert need == row.power_param.needed(ALPHA)  # the family is this one row: the claim holds α
     from harness.report.claims_table import needed_text
 
-    assert needed_text(row) == f"≈{int(need)} runs/arm for 80% power at the SESOI (α over 2 pairs, both tests; the SDs of these runs)"
+    expected = f"≈{int(need)} runs/arm for 80% power at the SESOI (α and the pairs searched, both tests; the SDs of these runs)"
+    assert needed_text(row) == expected
+    from_csv = row.copy()
+    from_csv["power_param"] = str(row.power_param)  # as claims.csv reads back (mlflow_answer)
+    assert needed_text(from_csv) == expected
     # the simulated power of the intersection-union test at that count (independent metrics, the
     # effects of interest: equal rendering, motion worse by its SESOI), 4000 draws: MC SE ≤ 0.007
     d_m, d_v = row.power_param.effects
