@@ -56,6 +56,9 @@ def test_a_partial_store_is_completed_from_the_committed_report(tmp_path: Path, 
     marked.loc[cc & (marked.seed == 0), "domain"] = "elsewhere00"
     marked.loc[cc & (marked.seed == 1), "trainer_fingerprint"] = OLD
     marked.loc[cc & (marked.seed == 3), "trainer_fingerprint"] = "0ther0ther00"
+    diverged = (marked.variant == "baseline") & (marked.seed == 3)
+    marked["failure"] = marked["failure"].astype(object)
+    marked.loc[diverged, ["status", "failure"]] = ["FAILED", "diverged"]  # an answer: it is read too
     marked.to_csv("reports/mini/runs.csv", index=False)
     real = committed_module.same_bits
     monkeypatch.setattr(committed_module, "same_bits", lambda f: real(f) | {OLD})
@@ -69,8 +72,9 @@ def test_a_partial_store_is_completed_from_the_committed_report(tmp_path: Path, 
     assert status[("baseline", "easy", 1)] == "FAILED"  # the store's, though the file holds it finished
     assert status[("cc", "easy", 0)] == "MISSING"  # another determinism domain
     assert status[("cc", "easy", 3)] == "MISSING"  # another trainer's bits
-    filled = [("baseline", "easy", 2), ("baseline", "easy", 3), ("cc", "easy", 1), ("cc", "easy", 2)]
-    assert all(status[k] == "FINISHED" for k in filled) and sum(s == "FINISHED" for s in status.values()) == 5
+    assert status[("baseline", "easy", 3)] == "FAILED" and got.at[("baseline", "easy", 3), "failure"] == "diverged"
+    filled = [("baseline", "easy", 2), ("cc", "easy", 1), ("cc", "easy", 2)]
+    assert all(status[k] == "FINISHED" for k in filled) and sum(s == "FINISHED" for s in status.values()) == 4
     mine = marked.set_index(KEYS)
     for k in filled:  # the committed rows as written: metrics, run id, commit, start time, trainer
         for col in ("psnr", "run_id", "git_sha", "start_time", "config_hash", "trainer_fingerprint"):
@@ -85,7 +89,7 @@ def test_a_partial_store_is_completed_from_the_committed_report(tmp_path: Path, 
 
     # the index and every page decide on the same completed runs
     frame = families.study_frame("mini", Path("again"), studies_dir=studies, profile="quick")
-    assert frame.set_index("claim").n["cc_mean"] == "2 vs 3"  # cc 1, 2 (filled); baseline 0 (store), 2, 3 (filled)
+    assert frame.set_index("claim").n["cc_mean"] == "2 vs 2"  # cc 1, 2 (filled); baseline 0 (store), 2 (filled)
 
     # written over the committed report itself: the files of the cells read from it stay
     write_report("mini", Selection(profile="quick"), studies_dir=studies, reports_root=Path("reports"),
