@@ -57,8 +57,9 @@ def claim_spans(study: str, claims: tuple[ClaimSpec, ...], runs: pd.DataFrame | 
                 register: Register) -> list[dict]:
     """One row (``COLUMNS``) per counted method claim of ``study``: ``instances``, the fewest
     instances any of its scenes has among its tested runs (0 when a scene has none, or there
-    are no runs); ``most_instances``, the most any of them has; ``per_scene``, each scene's count (``studio: 3, exposure_drift: 1``); ``runs``,
-    its finished runs. ``runs``: the study's runs frame, with or without instance columns."""
+    are no runs); ``most_instances``, the most any of them has; ``per_scene``, each scene's count
+    (``studio: 3, exposure_drift: 1``); ``runs``, its finished runs. ``runs``: the study's runs
+    frame, with or without instance columns."""
     rows = []
     for c in claims:
         if not method_claim(study, c, register):

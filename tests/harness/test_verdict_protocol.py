@@ -304,7 +304,8 @@ def test_an_undecided_dissociation_prices_its_runs_by_the_intersection_union_pow
     assert need == row.power_param.needed(ALPHA)  # the family is this one row: the claim holds α
     from harness.report.claims_table import needed_text
 
-    expected = f"≈{int(need)} runs/arm for 80% power at the SESOI (α and the pairs searched, both tests; the SDs of these runs)"
+    expected = (f"≈{int(need)} runs/arm for 80% power at the SESOI (α and the pairs searched, both tests;"
+                " the SDs of these runs)")
     assert needed_text(row) == expected
     from_csv = row.copy()
     from_csv["power_param"] = str(row.power_param)  # as claims.csv reads back (mlflow_answer)
