@@ -51,6 +51,13 @@ TEXT_COLUMNS = ("config_hash", "trainer_fingerprint", "domain", "determinism", "
 ANOTHER_DOMAIN, ANOTHER_CONFIG, TRAINER_CODE = "another determinism domain", "another config", "trainer code"
 
 
+def answered(runs: pd.DataFrame) -> pd.Series:
+    """Which rows of a runs frame are a trainer's answer: finished, or diverged (a recorded
+    divergence is that code's result); a crash or an interruption is not."""
+    failure = runs["failure"] if "failure" in runs else pd.Series("", index=runs.index)
+    return (runs.status == "FINISHED") | ((runs.status == "FAILED") & (failure == "diverged"))
+
+
 def read_reference(path: str) -> pd.DataFrame:
     """A committed ``runs.csv`` with floats read back exactly as written (pandas' default parser is
     exact for what ``to_csv`` writes: every float of the committed reports reads back bit for bit;

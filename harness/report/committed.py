@@ -24,7 +24,7 @@ import pandas as pd
 
 from ftgspp.errors import InputError
 from harness.analysis.aggregate import DOMAIN_COLUMNS, KEY_COLUMNS, RUN_COLUMNS
-from harness.analysis.reproduction import read_reference
+from harness.analysis.reproduction import answered, read_reference
 from harness.report.results import Filled, Recorded, ReportData, trainer_fingerprints
 from harness.spec.instances import instance_columns
 from harness.spec.metrics import add_differences
@@ -101,8 +101,8 @@ def from_committed(data: ReportData, folder: Path, echo: Callable[[str], None] =
 
 def fill_missing(data: ReportData, folder: Path, echo: Callable[[str], None] = print) -> ReportData:
     """``data`` read from the tracking store, with each planned run the store lacks (MISSING) that
-    the committed report in ``folder`` holds finished (or diverged: a divergence is that trainer's
-    answer, as ``currency`` reads it), by the trainer of the store's finished runs
+    the committed report in ``folder`` holds finished (or diverged: ``reproduction.answered``, as
+    ``currency`` reads it), by the trainer of the store's finished runs
     or one recorded to train its bits (``tracking.provenance.same_bits``), in a determinism domain
     of theirs (``ftgspp.runtime.determinism``: same machine kind, mode and threads), read from that
     report (``Filled``): the same config hash, trainer bits and domain give the same run (``study
@@ -121,9 +121,7 @@ def fill_missing(data: ReportData, folder: Path, echo: Callable[[str], None] = p
     runs = read_runs(path)
     if not {"trainer_fingerprint", "git_sha", "domain"} <= set(runs.columns):
         return data  # a file older than the provenance columns cannot show it holds the same runs
-    failure = runs["failure"] if "failure" in runs else pd.Series("", index=runs.index)
-    answered = (runs.status == "FINISHED") | ((runs.status == "FAILED") & (failure == "diverged"))  # as currency reads
-    runs = runs[answered & runs.trainer_fingerprint.isin(same) & runs.domain.isin(domains)]
+    runs = runs[answered(runs) & runs.trainer_fingerprint.isin(same) & runs.domain.isin(domains)]
     held = {key: i for i, key in enumerate(runs[KEY_COLUMNS].itertuples(index=False, name=None))}
     keys = [key if want and key in held else None
             for key, want in zip(df[KEY_COLUMNS].itertuples(index=False, name=None), lacking)]

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.analysis.reproduction import KEY as RUN_KEY
+from harness.analysis.reproduction import KEY as RUN_KEY, answered
 from harness.report import COMMITTED_REPORTS
 from harness.spec.study_schema import ProfileSpec
 from harness.spec.throughput import estimate
@@ -75,9 +75,7 @@ def committed_current(df: pd.DataFrame, committed: Path, trainer: str) -> bool:
     runs = pd.read_csv(committed, dtype={"config_hash": str, "trainer_fingerprint": str})
     if not set(KEY) | {"status", "trainer_fingerprint"} <= set(runs.columns):
         return False
-    failure = runs["failure"] if "failure" in runs else pd.Series("", index=runs.index)
-    ok = runs[runs.trainer_fingerprint.isin(same_bits(trainer))
-              & ((runs.status == "FINISHED") | ((runs.status == "FAILED") & (failure == "diverged")))]
+    ok = runs[runs.trainer_fingerprint.isin(same_bits(trainer)) & answered(runs)]
     have = set(ok[KEY].astype(str).itertuples(index=False, name=None))
     return all(key in have for key in df[KEY].astype(str).itertuples(index=False, name=None))
 
