@@ -72,10 +72,9 @@ def needed_text(row: pd.Series) -> str:
         return ""
     alpha = row.get("alpha", stats.ALPHA)
     a = "α" if not isinstance(alpha, float) or math.isnan(alpha) or alpha >= stats.ALPHA else f"{alpha:.3g}"
-    at = (f"{a}/{int(row.family_size)}" if isinstance(row.family_size, float) and row.family_size > 1 else a) + \
-        ", the SD of these runs"
-    if row.get("power_test") == "iu":  # an existential dissociation: both one-sided tests, Bonferroni over its pairs
-        at = at.replace(", the SD", " and the pairs searched, both tests; the SDs", 1)
+    sds = (" and the pairs searched, both tests; the SDs of these runs" if row.get("power_test") == "iu"
+           else ", the SD of these runs")  # "iu": an existential dissociation, Bonferroni over its pairs
+    at = (f"{a}/{int(row.family_size)}" if isinstance(row.family_size, float) and row.family_size > 1 else a) + sds
     unit = "instances/arm" if "instance" in str(row.get("n", "")) else "runs/arm"  # the claim's unit (spec.instances)
     if math.isinf(row.n_needed):
         return f"more than {stats.N_MAX} {unit} for 80% power at the SESOI ({at})"
