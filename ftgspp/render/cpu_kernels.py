@@ -171,6 +171,19 @@ def _kept(x, keep):
     return _f32_from_bits(np.int32(_bits_of_f32(x) & -np.int32(keep)))
 
 
+@njit(inline="always", **JIT)
+def _pick(keep, a, b):
+    """``a if keep else b`` (float32, bit for bit), by bit masks instead of a branch.
+
+    The pixel loops update a tile-state row as a product or a sum with such a factor
+    (``x * _pick(c, f, 1)``, ``x + _kept(d, c)``), not as ``new if c else x``: stored back to
+    the row ``x`` was loaded from, a select (in either form) compiles to a masked store. That is
+    a cheap k-masked move with AVX-512, but AVX2's ``vmaskmovps`` store was slow on this
+    project's AMD EPYC (docs/benchmarks-history.md, 2026-11-30)."""
+    m = -np.int32(keep)
+    return _f32_from_bits(np.int32((_bits_of_f32(a) & m) | (_bits_of_f32(b) & ~m)))
+
+
 @njit(**JIT)
 def exp_clamped(power):
     """exp(power) for float32 ``power`` in [-8, 0], within 1 ulp; exp(-8) below, 1 above.
@@ -438,8 +451,12 @@ def _forward_pixel(st, p, mx, my, nh_a, nh_c, cb, op, z, f_slot):
     t = st[_F_T + p]
     w, t_new, stop, use = _forward_step(t, st[_F_PX + p] - mx, st[_F_PY + p] - my, nh_a, nh_c, cb, op)
     st[_F_T + p] = t_new
-    st[_F_TSTOP + p] = t if stop else st[_F_TSTOP + p]
-    st[_F_SLOT + p] = f_slot if stop else st[_F_SLOT + p]
+    # A pixel stops at most once (then t = 0), and until then its stop record holds 1 and
+    # the list length (integers < 2^24, exact in float32): x 1 and + 0 keep them, x t and
+    # + (slot - length) set them, exactly. Stores of these products, unlike the select's,
+    # stay plain stores on AVX2 (see ``_pick``).
+    st[_F_TSTOP + p] *= _pick(stop, t, F1)
+    st[_F_SLOT + p] += _kept(f_slot - st[_F_SLOT + p], stop)
     st[_F_Z + p] += _kept(w * z, use)
     return w, stop, use
 
@@ -611,7 +628,7 @@ def _forward_tile(
                             base = q + np.uint64(b * RB)
                             for j in range(_RB):
                                 w = st[_F_W + base + j]
-                                st[acc + base + j] += w * c if w > F0 else F0
+                                st[acc + base + j] += _kept(w * c, w > F0)
         if stops:  # count the pixels this Gaussian stopped (rare: once per pixel)
             for p in range(lo, hi):
                 active -= np.int64(st[_F_SLOT + p] == f_slot)
@@ -714,8 +731,10 @@ def _backward_step(t_after, rest, dx, dy, dot, before_stop, nh_a, nh_c, cb, op):
     grad = live & (raw <= F_ALPHA_MAX)
     d_power = d_alpha * raw if grad else F0
     d_opacity = d_alpha * gauss if grad else F0
-    t_new = t if live else t_after
-    rest_new = rest + w * dot if live else rest
+    # t_after x 1 is t_after; rest + 0 is rest (a zero rest may lose its sign, which no
+    # output keeps: it only multiplies into terms added to sums that start at +0)
+    t_new = t_after * _pick(live, inv_one_minus, F1)
+    rest_new = rest + _kept(w * dot, live)
     return live, w, t_new, rest_new, d_power, d_opacity
 
 
@@ -737,7 +756,7 @@ def _backward_pixel(st, lanes, p, j, gz, dot, mx, my, nh_a, nh_c, cb, op, f_slot
     lanes[_L[3] + j] += d_power * dx * dy
     lanes[_L[4] + j] += d_power * dy * dy
     lanes[_L[5] + j] += d_opacity
-    lanes[_L[6] + j] += gz * w if live else F0
+    lanes[_L[6] + j] += _kept(gz * w, live)
     return live, w
 
 
@@ -756,9 +775,9 @@ def _backward_block3(st, lanes, lo, hi, base, z, c0, c1, c2, mx, my, nh_a, nh_c,
             g2 = st[_B_G2 + p]
             dot = gz * z + (g0 * c0 + g1 * c1 + g2 * c2)
             live, w = _backward_pixel(st, lanes, p, j, gz, dot, mx, my, nh_a, nh_c, cb, op, f_slot)
-            lanes[_L[7] + j] += g0 * w if live else F0
-            lanes[_L[8] + j] += g1 * w if live else F0
-            lanes[_L[9] + j] += g2 * w if live else F0
+            lanes[_L[7] + j] += _kept(g0 * w, live)
+            lanes[_L[8] + j] += _kept(g1 * w, live)
+            lanes[_L[9] + j] += _kept(g2 * w, live)
 
 
 @njit(**_TILE_JIT)
@@ -866,7 +885,7 @@ def _backward_tile(
                         for k in range(_RB):
                             j = base + k
                             w = st[_B_DOT + q + j]
-                            lanes[lane + j] += st[gch + q + j] * w if w > F0 else F0
+                            lanes[lane + j] += _kept(st[gch + q + j] * w, w > F0)
         # widened in one vectorised pass (exact), then summed in column order: the same sums
         # as widening each term in the loop, without one scalar conversion per term
         for q in range(n_terms * TS):

@@ -57,6 +57,21 @@ def test_kept_is_the_value_or_positive_zero_bit_for_bit() -> None:
         assert np.float32(kept(x, False)).tobytes() == np.float32(0.0).tobytes()
 
 
+def test_pick_is_one_of_its_two_values_bit_for_bit() -> None:
+    """``_pick(keep, a, b)``, the kernels' branch-free ``a if keep else b``, returns exactly one
+    argument's bits on the awkward floats too (-0, infinities, NaN, subnormals)."""
+    from numba import njit
+
+    from ftgspp.render import cpu_kernels as k
+
+    pick = njit(lambda keep, a, b: k._pick(keep, a, b))
+    xs = np.array([1.5, -2.25, 0.0, -0.0, np.inf, -np.inf, np.nan, 1e-45, -3e-39, 3.4e38], np.float32)
+    for a in xs:
+        for b in xs[::-1]:
+            assert np.float32(pick(True, a, b)).tobytes() == a.tobytes()
+            assert np.float32(pick(False, a, b)).tobytes() == b.tobytes()
+
+
 def test_balance_tiles_deals_every_tile_once() -> None:
     cost = np.array([5.0, 0.0, 9.0, 1.0, 9.0, 3.0, 2.0])
     for n_workers in (1, 2, 3, 8):
