@@ -11,7 +11,8 @@ vector ISA, so an AVX-512 host can measure what an AVX2 host gets from the instr
 microarchitecture stays this host's); a target whose instructions this host lacks is refused
 (the child would die of an illegal instruction). ``kernel_registers`` counts the
 vector registers in the compiled rasterizer kernels' assembly: ``zmm`` are 512-bit, ``ymm``
-256-bit, ``xmm`` 128-bit (and scalar floating point).
+256-bit, ``xmm`` 128-bit (and scalar floating point), and AVX's masked moves (``vmaskmovps``),
+which the pixel loops avoid (slow stores on AMD cores; ``cpu_kernels._pick``).
 """
 
 from __future__ import annotations
@@ -159,9 +160,10 @@ def kernel_registers() -> dict[str, int] | None:
     image.sum().backward()
     if any(sum(getattr(cpu_kernels, name).stats.cache_hits.values()) for name in ("render_forward", "render_backward")):
         return None
-    counts = {"zmm": 0, "ymm": 0, "xmm": 0}
+    counts = {"zmm": 0, "ymm": 0, "xmm": 0, "vmaskmov": 0}
     for name in ("render_forward", "render_backward"):
         for asm in getattr(cpu_kernels, name).inspect_asm().values():
-            for reg in counts:
+            for reg in ("zmm", "ymm", "xmm"):
                 counts[reg] += len(re.findall(rf"%{reg}\d+", asm))
+            counts["vmaskmov"] += len(re.findall(r"\bvmaskmovp[sd]\b", asm))
     return counts

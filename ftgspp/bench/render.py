@@ -124,7 +124,8 @@ def format_render_table(result: dict[str, Any]) -> str:
                      f"in one that loaded them {cached:.2f} ms ({cold / cached:.2f}x)")
     if "registers" in result:
         r = result["registers"]
-        lines.append(f"raster kernels' vector registers: zmm {r['zmm']}, ymm {r['ymm']}, xmm {r['xmm']}")
+        lines.append(f"raster kernels' vector registers: zmm {r['zmm']}, ymm {r['ymm']}, xmm {r['xmm']}; "
+                     f"AVX masked moves (vmaskmov) {r.get('vmaskmov', '-')}")
     if "numba_threading_layer" in result:
         lines.append(f"numba: {result['numba_threads']} threads, layer {result['numba_threading_layer']}")
     if result["load_average"][0] > 0.5 * (result["cpu_count"] or 1):
