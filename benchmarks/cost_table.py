@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 from pathlib import Path
@@ -153,12 +152,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     rat = ratios(table)
-    result = {"commit": commit + ("+dirty" if dirty else ""), "machine": platform.processor() or platform.machine(),
+    from ftgspp.bench.isa import describe, host_isa
+
+    result = {"commit": commit + ("+dirty" if dirty else ""), "machine": describe(host_isa()),
               "cpu_count": os.cpu_count(), "runs": args.runs, "iterations": args.iterations, "table": table,
               "ratios_vs_host": rat}
     if args.json:
         args.json.write_text(json.dumps(result, indent=1))
-    print(f"commit {result['commit']}, {args.runs} quick runs a study, bench {args.iterations} iterations")
+    print(f"commit {result['commit']}, {result['machine']}, {args.runs} quick runs a study, "
+          f"bench {args.iterations} iterations")
     print(markdown(table, rat))
     return 0
 

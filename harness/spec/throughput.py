@@ -4,8 +4,11 @@ time (``report.currency``).
 
 ``QUICK_RUNS_PER_HOUR`` holds, per vector instruction set, the quick runs an hour a study makes
 ``MEASURED_JOBS`` at a time on an idle 2-core machine, as ``benchmarks/runs_per_hour.py --runs 24``
-measured them (BENCHMARKS.md, EPYC-512 znver4, 2026-11-27: 253.3 and 256.9 with AVX-512, 178.7
-with ``--target haswell``, AVX2). Those are studio runs; ``MIX`` is how much longer the studies'
+measured them (BENCHMARKS.md, EPYC-512 znver4, 2026-11-27: 253.3 and 256.9 with AVX-512). The AVX2
+rate is that times ``AVX2_RATIO``, AVX2 kernels' quick runs an hour two at a time against AVX-512's
+on the same cores as ``benchmarks/cost_table.py`` measured them in one invocation (2026-11-30,
+8e46505: 154.7 against 183.0 on a slower day of that host; 178.7 an hour, 0.70x, before the
+masked-store fix a8e3b38). Those are studio runs; ``MIX`` is how much longer the studies'
 mix of runs (120-frame clips, 20,000-Gaussian ladders, portable mode) takes: a whole
 ``make reports`` took 2 h 47 min where the benchmark of its day said 2.6 h
 (docs/benchmarks-history.md, "`make reports` in one go"). Other ``jobs`` scale the rate by
@@ -23,7 +26,8 @@ from dataclasses import dataclass
 
 from harness.spec.study_schema import fmt_duration, jobs_speedup
 
-QUICK_RUNS_PER_HOUR = {"AVX-512": 255.0, "AVX2": 179.0}  # a study, 2 at a time, idle 2 cores (BENCHMARKS.md)
+AVX2_RATIO = 0.845  # AVX2 against AVX-512 kernels, quick runs an hour 2 at a time (BENCHMARKS.md, cost table)
+QUICK_RUNS_PER_HOUR = {"AVX-512": 255.0, "AVX2": float(round(255.0 * AVX2_RATIO))}  # a study, 2 at a time, idle 2 cores
 MEASURED_JOBS = 2  # the rates' runs at a time (make reports and the quick profiles run 2)
 MIX = 1.07  # the studies' runs against the benchmark's studio runs: 2 h 47 min measured / 2.6 h estimated
 
