@@ -2,7 +2,8 @@
 
 For each method (as the studies train it) and each kernel target it measures
 - a training iteration (ms): ``ftgspp bench train --models ... --backends cpu`` (5,000
-  Gaussians, 128x96, the first ``--iterations`` iterations from initialisation, 2 threads);
+  Gaussians, 128x96, the first ``--iterations`` iterations from initialisation, 2 threads; the
+  method's ``conf/model`` file only: the bench has no learning-rate option, so STGS at scale 1);
 - quick runs an hour one at a time and two at a time, with a run's median training seconds
   and wall seconds: ``benchmarks/runs_per_hour.py`` (a one-variant study of ``--runs`` seeds on
   the studio scene, its own store and scene cache);
