@@ -29,6 +29,10 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from ftgspp.bench.isa import describe, host_isa
+from harness.tracking.provenance import git_sha
 
 # The Hydra overrides with which the studies train each method (STGS at its study learning rate).
 METHODS = {
@@ -45,10 +49,6 @@ def _run_json(cmd: list[str]) -> dict:
         tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
         raise RuntimeError(f"{' '.join(cmd[1:4])} ... failed: {tail}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
-def _git(*args: str) -> str:
-    return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=False).stdout.strip()
 
 
 def iteration_ms(method: str, target: str, iterations: int, repeats: int) -> float:
@@ -144,8 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: --methods: no method {unknown or '(none)'}; known: {', '.join(METHODS)}", file=sys.stderr)
         return 2
     targets = [t for t in args.targets.split(",") if t]
-    commit = _git("rev-parse", "--short", "HEAD")
-    dirty = bool(_git("status", "--porcelain", "--", "ftgspp", "harness"))
+    commit = git_sha()  # of the code measured: taken before the measurements start
     try:
         table = measure(methods, targets, args.runs, args.iterations, args.repeats,
                         log=lambda m: print(m, file=sys.stderr, flush=True))
@@ -153,9 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     rat = ratios(table)
-    from ftgspp.bench.isa import describe, host_isa
-
-    result = {"commit": commit + ("+dirty" if dirty else ""), "machine": describe(host_isa()),
+    result = {"commit": commit, "machine": describe(host_isa()),
               "cpu_count": os.cpu_count(), "runs": args.runs, "iterations": args.iterations, "table": table,
               "ratios_vs_host": rat}
     if args.json:
