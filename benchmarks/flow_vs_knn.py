@@ -24,7 +24,8 @@ from ftgspp.config import DataConfig, InitConfig
 from ftgspp.data.load import load_scene
 from ftgspp.init.flow import FlowSet, flow_cache_dir, get_flow_model, keyframe_flows
 from ftgspp.init.flow_velocity import flow_velocities
-from ftgspp.init.points import depth_range, keyframes, knn_spacing, triangulate_keyframe
+from ftgspp.init.points import depth_range, keyframes, triangulate_keyframe
+from ftgspp.init.spacing import knn_spacing
 from ftgspp.init.velocity import knn_velocity
 
 

@@ -34,6 +34,8 @@ from ftgspp.strategy import Relocator
 
 log = logging.getLogger("ftgspp.train")
 
+# model.init_spacing -> the InitPoints field the initial scales come from (ftgspp/init/spacing.py)
+INIT_SPACINGS = {None: "spacing", "keyframe": "spacing", "union": "union_spacing"}
 CHECKPOINT_FORMAT = 2  # 1: one Adam per group and LR schedulers (before the state object)
 
 
@@ -48,14 +50,16 @@ def scene_extent(scene: Scene) -> float:
 
 def build_model(cfg: TrainConfig, scene: Scene, device: torch.device, stats: dict | None = None) -> DynamicGaussians:
     """Initialise the method's Gaussians (``model.method``) from the scene's initial point set
-    (seeded by ``init.fixed_seed`` or the run seed);
+    (seeded by ``init.fixed_seed`` or the run seed), their scales from the spacing
+    ``model.init_spacing`` names (``INIT_SPACINGS``);
     ``stats`` (when given) receives what the initial point set is made of (``InitPoints.stats``)."""
     init_seed = cfg.seed if cfg.init.fixed_seed is None else cfg.init.fixed_seed
     pts = initialize(scene, cfg.init, cfg.budget, seed=init_seed)
     if stats is not None:
         stats.update(pts.stats)
+    spacing = getattr(pts, INIT_SPACINGS[cfg.model.init_spacing])
     return method_class(cfg.model.method).from_points(
-        pts.means, pts.colors, pts.times, pts.velocities, pts.spacing, cfg.model, cfg.init, device
+        pts.means, pts.colors, pts.times, pts.velocities, spacing, cfg.model, cfg.init, device
     )
 
 

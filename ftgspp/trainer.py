@@ -45,7 +45,7 @@ from ftgspp.runtime.child import check_dispatch
 from ftgspp.runtime.determinism import MODES
 from ftgspp.strategy import Relocator
 from ftgspp.tracker import NullTracker, RunResult, Tracker
-from ftgspp.train_state import TrainState, set_learning_rates
+from ftgspp.train_state import INIT_SPACINGS, TrainState, set_learning_rates
 from ftgspp.view import render_view
 
 log = logging.getLogger("ftgspp.train")
@@ -117,6 +117,9 @@ def check_config(cfg: TrainConfig) -> None:
     if cfg.model.cc_gauge not in ColorCorrection.GAUGES:
         raise InputError("model.cc_gauge", f"unknown gauge '{cfg.model.cc_gauge}' (choose from"
                          f" {', '.join(ColorCorrection.GAUGES)})")
+    if cfg.model.init_spacing not in INIT_SPACINGS:
+        raise InputError("model.init_spacing", f"unknown rule '{cfg.model.init_spacing}' (choose from keyframe,"
+                         " union, or null)")
     if cfg.backend not in BACKENDS:
         raise InputError("backend", f"unknown backend '{cfg.backend}' (choose from {', '.join(BACKENDS)})")
 

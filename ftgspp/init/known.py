@@ -37,8 +37,8 @@ COLOUR_JITTER = 0.05  # colour offsets' SD (RGB in [0, 1])
 
 def true_points(scene: Scene, cfg: InitConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """The scene's true Gaussians as initial points, perturbed (module docstring): ``means``,
-    ``colors`` ``[K, 3]``, ``times`` ``[K]``, ``velocities`` ``[K, 3]``, ``spacing`` ``[K]``, float32,
-    and ``keyframe`` ``[K]`` (all 0: one set at the clip's middle), the fields of ``InitPoints``."""
+    ``colors`` ``[K, 3]``, ``times`` ``[K]``, ``velocities`` ``[K, 3]``, ``spacing`` and
+    ``union_spacing`` ``[K]``, float32, and ``keyframe`` ``[K]`` (all 0: one set at the clip's middle), the fields of ``InitPoints``."""
     path = scene.root / TRUTH_FILE
     if not path.is_file():
         raise InputError("init.matcher", f"'known' needs the true Gaussians in {path} (a scene of known size,"
@@ -54,6 +54,7 @@ def true_points(scene: Scene, cfg: InitConfig, rng: np.random.Generator) -> dict
         "times": np.full(k, float(truth["t_mid"]), dtype=np.float32),
         "velocities": truth["velocities"].astype(np.float32),
         "spacing": (scale / cfg.scale_factor).astype(np.float32),
+        "union_spacing": (scale / cfg.scale_factor).astype(np.float32),  # one set: no union to search
         "keyframe": np.zeros(k, dtype=np.int64),
     }
 

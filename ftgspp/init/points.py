@@ -19,7 +19,8 @@ would collapse the kNN spacing, and so the initial scales, to zero).
 
 ``initialize`` then adds kNN velocities (``ftgspp.init.velocity``), temporal centres (keyframe time
 + uniform jitter in +-stride/fps/2, not clipped to the loaded time span), kNN spacing (3 nearest
-neighbours in the same keyframe, floored at 1e-4 x the median so scales stay positive) and fits the
+neighbours in the same keyframe, floored at 1e-4 x the median so scales stay positive; and the union
+spacing of Spacetime Gaussians' rule, ftgspp/init/spacing.py) and fits the
 count to the budget: more points than ``budget - cfg.random_points`` are subsampled without
 replacement; fewer are topped up by resampling points with replacement and jittering the copies'
 positions by N(0, (0.5 spacing)^2) per axis (colour, time, velocity and spacing kept).
@@ -52,6 +53,7 @@ from ftgspp.init.dense import (
     triangulate_keyframe_dense,
 )
 from ftgspp.init.quality import depth_error, init_stats, velocity_error
+from ftgspp.init.spacing import knn_spacing, union_spacing
 from ftgspp.init.two_view import (
     fundamental_matrix,
     neighbor_pairs,
@@ -63,7 +65,6 @@ from ftgspp.init.velocity import check_velocity_mode, keyframe_velocities
 
 log = logging.getLogger("ftgspp.init")
 
-SPACING_K = 3  # neighbours for the kNN spacing
 AUTO_MARGIN = (0.5, 1.5)  # "auto" with scene bounds: (near * 0.5, far * 1.5)
 BASELINE_RANGE = (0.1, 1000.0)  # "auto" without bounds: multiples of the camera baseline
 PRIORS = {"indoor": (0.2, 20.0), "outdoor": (0.5, 500.0)}  # multiples of the scene scale
@@ -78,6 +79,7 @@ class InitPoints:
     times: np.ndarray  # [N] float32 temporal centres mu_t in seconds (already jittered)
     velocities: np.ndarray  # [N, 3] float32 world units / second
     spacing: np.ndarray  # [N] float32 mean distance to 3 nearest neighbours (same keyframe)
+    union_spacing: np.ndarray  # [N] float32 RMS distance to 3 nearest among every keyframe's points (spacing.py)
     keyframe: np.ndarray  # [N] int64 index of the keyframe the point came from
     stats: dict = field(default_factory=dict)  # what it is made of (ftgspp/init/quality.py); not per point
 
@@ -89,7 +91,7 @@ class InitPoints:
         return InitPoints(*(getattr(self, f)[idx] for f in POINT_FIELDS))
 
 
-POINT_FIELDS = ("means", "colors", "times", "velocities", "spacing", "keyframe")
+POINT_FIELDS = ("means", "colors", "times", "velocities", "spacing", "union_spacing", "keyframe")
 
 
 # --------------------------------------------------------------------------- geometry
@@ -244,16 +246,6 @@ def triangulate_keyframe(
 # --------------------------------------------------------------------------- assembly
 
 
-def knn_spacing(points: np.ndarray, k: int = SPACING_K) -> np.ndarray:
-    """Mean distance to the ``k`` nearest other points. [M, 3] -> [M] (NaN if M < 2)."""
-    m = len(points)
-    if m < 2:
-        return np.full(m, np.nan)
-    k = min(k, m - 1)
-    d, _ = cKDTree(points).query(points, k=k + 1)
-    return d[:, 1:].mean(axis=1)
-
-
 def keyframes(scene: Scene, cfg: InitConfig) -> list[int]:
     """Keyframe indices into the loaded frame range: 0, stride, 2 stride, ..."""
     if cfg.keyframe_stride < 1:
@@ -364,6 +356,8 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
     fallback = float(np.median(finite)) if len(finite) else 0.01 * scene_scale(scene)
     floor = max(1e-4 * fallback, 1e-12)  # coincident points: keep scales strictly positive
     all_spacing = np.maximum(np.where(np.isfinite(all_spacing), all_spacing, fallback), floor)
+    union = np.concatenate(union_spacing([p.astype(np.float64) for p in points]))  # floored by its own rule
+    union = np.where(np.isfinite(union), union, fallback)
 
     half = cfg.keyframe_stride / scene.fps / 2.0
     keyframe = np.concatenate([np.full(len(p), i, dtype=np.int64) for i, p in enumerate(points)])
@@ -374,6 +368,7 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
         times=times.astype(np.float32),
         velocities=np.concatenate(velocities).astype(np.float32),
         spacing=all_spacing.astype(np.float32),
+        union_spacing=union.astype(np.float32),
         keyframe=keyframe,
     )
     pts = _fit_budget(pts, budget - n_random, rng)
@@ -383,12 +378,14 @@ def initialize(scene: Scene, cfg: InitConfig, budget: int, seed: int) -> InitPoi
         rk = np.abs(rt[:, None] - np.asarray(kf_times)[None]).argmin(axis=1)
         rand_means = _random_points(scene, n_random, near, far, rng)
         rand_spacing = knn_spacing(rand_means)
+        (rand_union,) = union_spacing([rand_means])
         rand = InitPoints(
             means=rand_means.astype(np.float32),
             colors=rng.uniform(0, 1, size=(n_random, 3)).astype(np.float32),
             times=rt.astype(np.float32),
             velocities=np.zeros((n_random, 3), np.float32),
             spacing=np.where(np.isfinite(rand_spacing), rand_spacing, fallback).astype(np.float32),
+            union_spacing=np.where(np.isfinite(rand_union), rand_union, fallback).astype(np.float32),
             keyframe=rk.astype(np.int64),
         )
         pts = InitPoints(*(np.concatenate([getattr(pts, f), getattr(rand, f)]) for f in POINT_FIELDS))

@@ -9,7 +9,12 @@ log-scales S, an opacity logit o and an RGB colour c. With Δt = t − μτ:
 
 Initialisation follows the public code's lite model: every initial point becomes one
 Gaussian at its own time (μτ), s̃ = 0, no motion or rotation speed, opacity 0.1, scales the
-kNN spacing (log clamped to [−10, 1]), colour the point's RGB.
+spacing it is given (log clamped to [−10, 1]), colour the point's RGB. The public code takes that
+spacing over the points of every frame of the clip together, as the root mean square distance to
+the 3 nearest (squared, floored at 1e-7): ``model.init_spacing=union`` (conf/model/stg.yaml), over
+every keyframe's points here (ftgspp/init/spacing.py). Left at null, the per-keyframe mean distance
+that STGS's runs before 2026-11-30 started from (a static surface seen at several keyframes then
+starts about as large as a keyframe's point spacing instead of as small as the points' agreement).
 
 Left out, and why: the full model's spacetime features and MLP colour decoder (the lite
 variant renders RGB, which the issue and a CPU budget ask for); its densification, pruning,

@@ -49,6 +49,7 @@ HASH_NEUTRAL = {
     "lr.motion": "0.00028",
     "lr.omega": "0.0001",
     "model.fused_stage": "null",
+    "model.init_spacing": "null",
 }
 
 

@@ -214,6 +214,19 @@ def test_initialize_upsampling_adds_jittered_copies(scene, triangulated):
     assert np.array_equal(again.means, up.means)
 
 
+def test_union_spacing_is_searched_over_every_keyframes_points_before_the_budget_cut(scene, triangulated):
+    from ftgspp.init.spacing import union_spacing
+
+    per_keyframe = [np.hstack(triangulate_keyframe(scene, f, explicit(), 1.0, 20.0))[:, :3].astype(np.float64)
+                    for f in range(0, N_FRAMES, STRIDE)]
+    whole = initialize(scene, explicit(), budget=len(triangulated), seed=2)  # no cut: every point, in order
+    np.testing.assert_allclose(whole.union_spacing, np.concatenate(union_spacing(per_keyframe)), rtol=1e-6)
+    assert np.median(whole.union_spacing) < np.median(whole.spacing)  # other keyframes' points are near too
+    cut = initialize(scene, explicit(), budget=len(triangulated) // 2, seed=2)  # the kept points keep their values
+    rows = {tuple(r): u for r, u in zip(np.hstack([whole.means, whole.colors]), whole.union_spacing)}
+    assert all(rows[tuple(r)] == u for r, u in zip(np.hstack([cut.means, cut.colors]), cut.union_spacing))
+
+
 def test_times_are_jittered_within_half_a_keyframe_interval(scene):
     pts = initialize(scene, explicit(), budget=3000, seed=1)
     half = STRIDE / FPS / 2

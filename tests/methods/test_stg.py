@@ -160,6 +160,33 @@ def test_from_points_starts_as_the_public_lite_model() -> None:
     torch.testing.assert_close(model.temporal_centres(), torch.linspace(0, 1, n))
 
 
+def test_the_initial_scales_come_from_the_spacing_model_init_spacing_names(monkeypatch) -> None:
+    from ftgspp import train_state
+    from ftgspp.init import InitPoints
+    from ftgspp.trainer import check_config
+
+    n = 4
+    pts = InitPoints(means=np.zeros((n, 3), np.float32), colors=np.full((n, 3), 0.5, np.float32),
+                     times=np.zeros(n, np.float32), velocities=np.zeros((n, 3), np.float32),
+                     spacing=np.full(n, 0.2, np.float32), union_spacing=np.full(n, 0.01, np.float32),
+                     keyframe=np.zeros(n, np.int64))  # fmt: skip
+    monkeypatch.setattr(train_state, "initialize", lambda *args, **kwargs: pts)
+    for rule, want in ((None, 0.2), ("keyframe", 0.2), ("union", 0.01)):
+        cfg = TrainConfig(model=replace(STG, init_spacing=rule))
+        model = train_state.build_model(cfg, None, torch.device("cpu"))
+        np.testing.assert_allclose(model.params["scales"].detach().numpy(), np.log(np.float32(want)), rtol=1e-6)
+    with pytest.raises(InputError, match="model.init_spacing.*unknown rule 'nearest'"):
+        check_config(TrainConfig(model=replace(STG, init_spacing="nearest")))
+
+
+def test_conf_model_stg_starts_stgs_as_its_public_code() -> None:
+    from ftgspp.bench.train_speed import model_config
+
+    cfg = model_config("stg")
+    assert (cfg.method, cfg.init_spacing, cfg.fused_stage) == ("stg", "union", True)
+    assert model_config("ftgs").init_spacing is None
+
+
 @pytest.mark.slow
 def test_training_improves_saves_and_resumes_exactly(tiny_scene, tmp_path) -> None:
     from tests.test_trainer import StopAt
