@@ -19,13 +19,15 @@ REPORTS = Path(__file__).resolve().parents[2] / "reports"
 
 @pytest.fixture
 def drawn(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, list[str]]]:
-    """Each figure the report code saves, with its problems (checked before it is written)."""
+    """Each figure the report code saves, with its problems. The check draws the figure as it will be
+    saved (120 dpi); the figure is then closed unwritten: writing the PNG would draw it twice more
+    (``bbox_inches="tight"``) and nothing here reads the file (tests/harness/test_study_e2e.py does)."""
     seen: list[tuple[str, list[str]]] = []
-    save = plots.save_figure
 
     def checked(fig: plt.Figure, path: Path) -> Path:
         seen.append((path.name, figure_checks.figure_problems(fig)))
-        return save(fig, path)
+        plt.close(fig)
+        return path
 
     monkeypatch.setattr(plots, "save_figure", checked)
     monkeypatch.setattr(forest, "save_figure", checked)
