@@ -3,13 +3,12 @@
 ``ftgspp bench train --models ftgs,stg --breakdown`` shows the gap is the rasterizer's, and its work
 table shows why: STGS's Gaussians are drawn about as often per view as FreeTimeGS's but cover more
 (tile, Gaussian) pairs, i.e. they are larger on screen. The two methods start them at different
-sizes: FreeTimeGS at ``init.scale_factor`` (0.1) x the per-keyframe kNN spacing, STGS (as its public
-lite code) at the spacing itself, the root mean square distance to the 3 nearest among every
-keyframe's points (``model.init_spacing=union``, conf/model/stg.yaml). This script times the pair
-three times, STGS started (for this process only: the method's rule is unchanged)
+sizes: FreeTimeGS at ``init.scale_factor`` (0.1) x the per-keyframe kNN spacing, STGS at a spacing
+itself. This script times the pair three times, STGS started (overrides in this process only)
 
-1. as configured (``union``);
-2. at the per-keyframe mean spacing STGS's runs used before aaeb6f2 (``model.init_spacing=keyframe``);
+1. at the per-keyframe mean spacing (``model.init_spacing=keyframe``: its committed runs' start);
+2. at its public code's spacing, the root mean square distance to the 3 nearest among every
+   keyframe's points (``model.init_spacing=union``, ftgspp/init/spacing.py);
 3. at FreeTimeGS's size (the per-keyframe spacing x ``scale_factor``).
 
 If the ratio falls to about 1 in the third, the gap is the work the initial size gives, not the code.
@@ -24,18 +23,13 @@ import json
 import sys
 from dataclasses import replace
 
-import ftgspp.bench.train_speed as train_speed
+from ftgspp.bench import train_speed
 from ftgspp.bench.train_speed import bench_train, format_train_table
 from ftgspp.config import InitConfig
 from ftgspp.methods.stg import SpacetimeGaussians
 
 
 def run(iterations: int, repeats: int) -> dict:
-    def timed() -> dict:
-        return bench_train(iterations=iterations, repeats=repeats, backends=["cpu"], models=["ftgs", "stg"],
-                           breakdown=True)
-
-    configured = timed()
     named = train_speed.model_config
     from_points = SpacetimeGaussians.from_points.__func__
     factor = InitConfig().scale_factor
@@ -43,18 +37,21 @@ def run(iterations: int, repeats: int) -> dict:
     def smaller(cls, means, colors, times, velocities, spacing, cfg, init, device="cpu"):
         return from_points(cls, means, colors, times, velocities, factor * spacing, cfg, init, device)
 
-    train_speed.model_config = lambda name: replace(named(name), init_spacing="keyframe")
-    try:
-        per_keyframe = timed()
-        SpacetimeGaussians.from_points = classmethod(smaller)
+    def timed(rule: str) -> dict:
+        train_speed.model_config = lambda name: replace(named(name), init_spacing=rule) if name == "stg" else named(name)
         try:
-            same_size = timed()
+            return bench_train(iterations=iterations, repeats=repeats, backends=["cpu"], models=["ftgs", "stg"],
+                               breakdown=True)
         finally:
-            SpacetimeGaussians.from_points = classmethod(from_points)
+            train_speed.model_config = named
+
+    out = {"stgs_per_keyframe_spacing": timed("keyframe"), "stgs_union_spacing": timed("union")}
+    SpacetimeGaussians.from_points = classmethod(smaller)
+    try:
+        out[f"stgs_per_keyframe_spacing_x{factor}"] = timed("keyframe")
     finally:
-        train_speed.model_config = named
-    return {"stgs_as_configured_union_spacing": configured, "stgs_per_keyframe_spacing": per_keyframe,
-            f"stgs_per_keyframe_spacing_x{factor}": same_size}
+        SpacetimeGaussians.from_points = classmethod(from_points)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

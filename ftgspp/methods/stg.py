@@ -11,10 +11,11 @@ Initialisation follows the public code's lite model: every initial point becomes
 Gaussian at its own time (μτ), s̃ = 0, no motion or rotation speed, opacity 0.1, scales the
 spacing it is given (log clamped to [−10, 1]), colour the point's RGB. The public code takes that
 spacing over the points of every frame of the clip together, as the root mean square distance to
-the 3 nearest (squared, floored at 1e-7): ``model.init_spacing=union`` (conf/model/stg.yaml), over
-every keyframe's points here (ftgspp/init/spacing.py). Left at null, the per-keyframe mean distance
-that STGS's runs before 2026-11-30 started from (a static surface seen at several keyframes then
-starts about as large as a keyframe's point spacing instead of as small as the points' agreement).
+the 3 nearest (squared, floored at 1e-7): ``model.init_spacing=union``, over every keyframe's
+points here (ftgspp/init/spacing.py). At null (conf/model/stg.yaml, and every STGS run committed
+so far) it is the per-keyframe mean distance instead, a departure: a static surface seen at several
+keyframes then starts about as large as a keyframe's point spacing, not as small as its sightings
+agree. The switch waits for the STGS arms' regeneration (their config hash changes with it).
 
 Left out, and why: the full model's spacetime features and MLP colour decoder (the lite
 variant renders RGB, which the issue and a CPU budget ask for); its densification, pruning,
