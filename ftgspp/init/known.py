@@ -38,7 +38,8 @@ COLOUR_JITTER = 0.05  # colour offsets' SD (RGB in [0, 1])
 def true_points(scene: Scene, cfg: InitConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """The scene's true Gaussians as initial points, perturbed (module docstring): ``means``,
     ``colors`` ``[K, 3]``, ``times`` ``[K]``, ``velocities`` ``[K, 3]``, ``spacing`` and
-    ``union_spacing`` ``[K]``, float32, and ``keyframe`` ``[K]`` (all 0: one set at the clip's middle), the fields of ``InitPoints``."""
+    ``union_spacing`` ``[K]``, float32, and ``keyframe`` ``[K]`` (all 0: one set at the clip's
+    middle), the fields of ``InitPoints``."""
     path = scene.root / TRUTH_FILE
     if not path.is_file():
         raise InputError("init.matcher", f"'known' needs the true Gaussians in {path} (a scene of known size,"
