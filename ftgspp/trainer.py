@@ -118,8 +118,9 @@ def check_config(cfg: TrainConfig) -> None:
         raise InputError("model.cc_gauge", f"unknown gauge '{cfg.model.cc_gauge}' (choose from"
                          f" {', '.join(ColorCorrection.GAUGES)})")
     if cfg.model.init_spacing not in INIT_SPACINGS:
-        raise InputError("model.init_spacing", f"unknown rule '{cfg.model.init_spacing}' (choose from keyframe,"
-                         " union, or null)")
+        named = ", ".join(str(k) for k in INIT_SPACINGS if k is not None)
+        raise InputError("model.init_spacing", f"unknown rule '{cfg.model.init_spacing}' (choose from {named},"
+                         " or null)")
     if cfg.backend not in BACKENDS:
         raise InputError("backend", f"unknown backend '{cfg.backend}' (choose from {', '.join(BACKENDS)})")
 

@@ -9,8 +9,8 @@ Two rules, both over the ``SPACING_K`` = 3 nearest other points (exact kNN, ``sc
   clouds of every frame of the clip and starts each Gaussian at ``sqrt(max(mean d², 1e-7))``
   (``distCUDA2``, the 3DGS rule). A static surface seen at several keyframes gives points close to
   one another, so this spacing is much smaller than the per-keyframe one there.
-  ``model.init_spacing=union`` starts a run from it (``ftgspp/train_state.build_model``);
-  conf/model/stg.yaml leaves it off until the committed STGS runs are made again (docs/methods.md).
+  ``model.init_spacing=union`` starts a run from it (``ftgspp/train_state.build_model``), as
+  conf/model/stg.yaml sets for STGS.
 """
 
 from __future__ import annotations

@@ -12,10 +12,10 @@ Gaussian at its own time (μτ), s̃ = 0, no motion or rotation speed, opacity 0
 spacing it is given (log clamped to [−10, 1]), colour the point's RGB. The public code takes that
 spacing over the points of every frame of the clip together, as the root mean square distance to
 the 3 nearest (squared, floored at 1e-7): ``model.init_spacing=union``, over every keyframe's
-points here (ftgspp/init/spacing.py). At null (conf/model/stg.yaml, and every STGS run committed
-so far) it is the per-keyframe mean distance instead, a departure: a static surface seen at several
+points here (ftgspp/init/spacing.py); conf/model/stg.yaml sets it. At null it is the per-keyframe
+mean distance instead (STGS's runs before issue 59 started from it): a static surface seen at several
 keyframes then starts about as large as a keyframe's point spacing, not as small as its sightings
-agree. The switch waits for the STGS arms' regeneration (their config hash changes with it).
+agree.
 
 Left out, and why: the full model's spacetime features and MLP colour decoder (the lite
 variant renders RGB, which the issue and a CPU budget ask for); its densification, pruning,

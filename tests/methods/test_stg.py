@@ -179,13 +179,13 @@ def test_the_initial_scales_come_from_the_spacing_model_init_spacing_names(monke
         check_config(TrainConfig(model=replace(STG, init_spacing="nearest")))
 
 
-def test_conf_model_stg_keeps_the_committed_runs_config_until_they_are_made_again() -> None:
-    """model=stg is the configuration of the committed STGS runs: the fused stage, the per-keyframe
-    spacing (a named departure; model.init_spacing=union is the public code's, docs/methods.md)."""
+def test_conf_model_stg_starts_from_the_public_codes_spacing() -> None:
+    """model=stg is the public code's start: the fused stage and the union spacing (model.init_spacing=union,
+    docs/methods.md); FreeTimeGS keeps its per-keyframe spacing (null)."""
     from ftgspp.bench.train_speed import model_config
 
     cfg = model_config("stg")
-    assert (cfg.method, cfg.init_spacing, cfg.fused_stage) == ("stg", None, True)
+    assert (cfg.method, cfg.init_spacing, cfg.fused_stage) == ("stg", "union", True)
     assert model_config("ftgs").init_spacing is None
 
 
