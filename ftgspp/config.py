@@ -57,8 +57,7 @@ class ModelConfig:
     # the distance the initial scales come from (ftgspp/init/spacing.py): "keyframe" the mean distance to
     # the 3 nearest points of the same keyframe, "union" the RMS distance to the 3 nearest among every
     # keyframe's points together (floored at sqrt(1e-7)), Spacetime Gaussians' public rule; None the
-    # rule every method's runs were first made with ("keyframe"; conf/model/stg.yaml until STGS's
-    # study runs are made again)
+    # rule every method's runs were first made with ("keyframe"). conf/model/stg.yaml sets "union"
     init_spacing: str | None = None
 
 
