@@ -6,9 +6,9 @@ table shows why: STGS's Gaussians are drawn about as often per view as FreeTimeG
 sizes: FreeTimeGS at ``init.scale_factor`` (0.1) x the per-keyframe kNN spacing, STGS at a spacing
 itself. This script times the pair three times, STGS started (overrides in this process only)
 
-1. at the per-keyframe mean spacing (``model.init_spacing=keyframe``: its committed runs' start);
+1. at the per-keyframe mean spacing (``model.init_spacing=keyframe``: its runs' start before issue 59);
 2. at its public code's spacing, the root mean square distance to the 3 nearest among every
-   keyframe's points (``model.init_spacing=union``, ftgspp/init/spacing.py);
+   keyframe's points (``model.init_spacing=union``, as configured; ftgspp/init/spacing.py);
 3. at FreeTimeGS's size (the per-keyframe spacing x ``scale_factor``).
 
 If the ratio falls to about 1 in the third, the gap is the work the initial size gives, not the code.
