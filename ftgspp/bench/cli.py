@@ -2,7 +2,7 @@
 result as a table or, with ``--json``, as one JSON line.
 
     ftgspp bench render [--n 5000] [--width 128 --height 96] [--repeats 10] [--json]
-    ftgspp bench train [--iterations 200] [--budget 5000] [--repeats 2] [--breakdown] [--json]
+    ftgspp bench train [--iterations 200] [--budget 5000] [--repeats 2] [--breakdown] [--after N] [--json]
     ftgspp bench scale [--counts 1000,5000,20000,100000] [--sizes 128x96,256x192,512x384] [--json]
 
 ``render`` and ``train`` take ``--target CPU`` (e.g. ``haswell``, ``znver1``, ``skylake-avx512``):
@@ -49,6 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--breakdown", action="store_true", help="also time every phase of an iteration")
     train.add_argument("--models", default="ftgs",
                        help="comma-separated methods (conf/model/<name>.yaml), each timed on each backend (default: ftgs)")
+    train.add_argument("--after", type=int, default=0,
+                       help="time the iterations after the first AFTER (trained once per row, untimed; default 0)")
     train.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
     train.add_argument("--target", default="host", help="LLVM CPU to compile the kernels for (default: host)")
     scale = sub.add_parser("scale", help="cost of an iteration over Gaussian counts x resolutions")
@@ -124,8 +126,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "train":
         from ftgspp.bench.train_speed import bench_train, format_train_table
 
+        if args.after < 0:
+            raise InputError("--after", f"must be 0 or more iterations, got {args.after}")
         result = bench_train(iterations=args.iterations, budget=args.budget, repeats=args.repeats,
-                             width=args.width, height=args.height, breakdown=args.breakdown,
+                             width=args.width, height=args.height, breakdown=args.breakdown, after=args.after,
                              backends=[b for b in args.backends.split(",") if b] or None,
                              models=[m for m in args.models.split(",") if m] or None)
         print(json.dumps(result) if args.json else format_train_table(result))

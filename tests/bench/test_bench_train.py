@@ -116,3 +116,39 @@ def test_bench_train_times_each_method_and_its_ratio_to_the_first(capsys):
     assert lines[2].split()[-2:] == ["vs", "ftgs"] and lines[3].split()[0] == "ftgs/cpu" and lines[3].endswith("1.00x")
     with pytest.raises(InputError, match="no model 'nope'"):
         main(["train", "--iterations", "3", "--models", "nope"])
+
+
+def test_bench_train_after_times_only_the_resumed_iterations(monkeypatch, capsys):
+    """``--after N``: each row trains its first N iterations once, untimed, and every timed run
+    resumes a copy of that checkpoint; the figure is the resumed part's own loop seconds."""
+    import ftgspp.trainer as trainer
+    from ftgspp.train_state import TrainState
+
+    real_train, real_load = trainer.train, TrainState.load
+    calls, resumed_at = [], []
+
+    def load(self, path):  # the step every timed run starts from
+        ok = real_load(self, path)
+        resumed_at.append(self.step)
+        return ok
+
+    def train(cfg, scene, tracker=None):
+        result = real_train(cfg, scene, tracker)
+        calls.append((cfg.iterations, cfg.resume, cfg.strategy.refine_stop_iter, result.metrics["train_seconds"]))
+        return result
+
+    monkeypatch.setattr(trainer, "train", train)
+    monkeypatch.setattr(TrainState, "load", load)
+    assert main(["train", "--iterations", "4", "--budget", "200", "--repeats", "2", "--width", "64",
+                 "--height", "48", "--backends", "cpu", "--after", "6", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["after"] == 6 and out["iterations"] == 4
+    prefix, *timed = calls  # the prefix once, then the warm-up's 3 iterations and the 2 repeats' 4
+    assert prefix[:3] == (6, False, 11)  # its relocation window is the timed runs' (6 + 4 + 1)
+    assert [c[:3] for c in timed] == [(9, True, 11), (10, True, 11), (10, True, 11)]
+    assert resumed_at == [6, 6, 6]  # every timed run started from the prefix's checkpoint
+    expected = [1000.0 * (c[3] - prefix[3]) / 4 for c in timed[1:]]
+    assert out["backends"]["cpu"]["all_ms"] == expected and all(ms > 0 for ms in expected)
+    assert "4 iterations after the first 6 x 2 repeats" in format_train_table(out).splitlines()[0]
+    with pytest.raises(InputError, match="--after: must be 0 or more"):
+        main(["train", "--after", "-1"])
