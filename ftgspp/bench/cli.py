@@ -37,7 +37,8 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--seed", type=int, default=0)
     render.add_argument("--json", action="store_true", help="print one JSON line instead of a table")
     render.add_argument("--asm", action="store_true", help="count the vector registers in the raster kernels "
-                        "(compiles them in a child process with an empty cache)")
+                        "and the instructions of their RGB pixel loops (ftgspp/bench/asm_census.py; "
+                        "compiles them in a child process with an empty cache)")
     render.add_argument("--target", default="host", help="LLVM CPU to compile the kernels for (default: host)")
     train = sub.add_parser("train", help="whole training iterations of every backend (ftgspp/bench/train_speed.py)")
     train.add_argument("--iterations", type=int, default=200)

@@ -145,10 +145,12 @@ def run_for_target(argv: list[str], target: str, timeout: float = 3600.0) -> dic
     return result
 
 
-def kernel_registers() -> dict[str, int] | None:
+def kernel_registers() -> dict | None:
     """Vector registers named in the assembly of the rasterizer's kernels (``render_forward``,
-    ``render_backward``: the per-tile loops are inlined into them); None when this process
-    loaded them from the cache (Numba keeps no assembly of cached code)."""
+    ``render_backward``: the per-tile loops are inlined into them), and under ``pixel_loops`` the
+    instructions of their RGB pixel loops (``asm_census.pixel_loop``, None where none was found);
+    None when this process loaded them from the cache (Numba keeps no assembly of cached code)."""
+    from ftgspp.bench.asm_census import pixel_loop
     from ftgspp.bench.random_scene import project_scene, random_scene
     from ftgspp.render import cpu_kernels
     from ftgspp.render.cpu import rasterize
@@ -160,10 +162,11 @@ def kernel_registers() -> dict[str, int] | None:
     image.sum().backward()
     if any(sum(getattr(cpu_kernels, name).stats.cache_hits.values()) for name in ("render_forward", "render_backward")):
         return None
-    counts = {"zmm": 0, "ymm": 0, "xmm": 0, "vmaskmov": 0}
-    for name in ("render_forward", "render_backward"):
-        for asm in getattr(cpu_kernels, name).inspect_asm().values():
-            for reg in ("zmm", "ymm", "xmm"):
-                counts[reg] += len(re.findall(rf"%{reg}\d+", asm))
-            counts["vmaskmov"] += len(re.findall(r"\bvmaskmovp[sd]\b", asm))
+    counts: dict = {"zmm": 0, "ymm": 0, "xmm": 0, "vmaskmov": 0, "pixel_loops": {}}
+    for name, key in (("render_forward", "forward"), ("render_backward", "backward")):
+        asm = "".join(getattr(cpu_kernels, name).inspect_asm().values())
+        for reg in ("zmm", "ymm", "xmm"):
+            counts[reg] += len(re.findall(rf"%{reg}\d+", asm))
+        counts["vmaskmov"] += len(re.findall(r"\bvmaskmovp[sd]\b", asm))
+        counts["pixel_loops"][key] = pixel_loop(asm)
     return counts

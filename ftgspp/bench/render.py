@@ -90,6 +90,15 @@ def bench_render(
     return result
 
 
+def pixel_loop_line(pass_name: str, c: dict | None) -> str:
+    """One line of ``asm_census.pixel_loop``'s census of a pass's RGB pixel loop."""
+    if c is None:
+        return f"{pass_name} pixel loop: not found in the assembly"
+    return (f"{pass_name} pixel loop, one pass = {c['lanes']} pixels: {c['alu']} vector ALU instructions "
+            f"({c['alu'] / c['lanes']:.2f} a pixel), {c['load']} loads, {c['store']} stores, {c['move']} register "
+            f"moves, {c['mask']} mask, {c['scalar']} scalar; {c['instructions']} in all")
+
+
 def format_render_table(result: dict[str, Any]) -> str:
     """Human-readable table of a ``bench_render`` result."""
     lines = [
@@ -126,6 +135,8 @@ def format_render_table(result: dict[str, Any]) -> str:
         r = result["registers"]
         lines.append(f"raster kernels' vector registers: zmm {r['zmm']}, ymm {r['ymm']}, xmm {r['xmm']}; "
                      f"AVX masked moves (vmaskmov) {r.get('vmaskmov', '-')}")
+        for key, c in (r.get("pixel_loops") or {}).items():
+            lines.append(pixel_loop_line(key, c))
     if "numba_threading_layer" in result:
         lines.append(f"numba: {result['numba_threads']} threads, layer {result['numba_threading_layer']}")
     if result["load_average"][0] > 0.5 * (result["cpu_count"] or 1):
