@@ -2,26 +2,30 @@
 
 ``ftgspp bench render --asm`` compiles the raster kernels in a child process (an empty cache:
 Numba keeps no assembly of cached code) and passes their assembly here. ``pixel_loop`` finds the
-compositing loop of the RGB path: among the innermost loops that evaluate ``exp_clamped`` (its
-2^n is the only float-to-int32 conversion, ``vcvttps2dq``, of a pixel loop), one of the widest
+compositing loop of the RGB path: among the innermost loops that evaluate ``exp_clamped`` (a
+vector floor, ``vroundps`` / ``vrndscaleps``, then the float-to-int32 conversion ``vcvttps2dq``
+that builds its 2^n; the output loop converts the stop slots, but floors nothing), one of the widest
 vectors (not a remainder loop's narrower or unrolled scalar code) that stores the most tile-state
-rows (the RGB path stores three colour rows more than the other). ``census`` sorts that loop's
+rows (the RGB path stores seven a pixel, the other path five). ``census`` sorts that loop's
 instructions:
 
-- ``alu``: vector instructions that compute (arithmetic, compares, blends, masked moves,
-  conversions, packs and extracts), the work the vector units do;
-- ``load`` / ``store``: vector moves and broadcasts from / to memory (a load folded into an
-  arithmetic instruction counts as ``alu``);
-- ``move``: register-to-register vector moves (renamed away on recent x86 cores);
+- ``alu``: vector instructions that compute (arithmetic, compares, blends, masked register moves,
+  conversions, packs, extracts to registers, transfers between vector and general registers), the
+  work of the vector units; ``alu_zmm`` of them on 512-bit registers;
+- ``load`` / ``store``: vector moves, broadcasts, masked moves, gathers and scatters from / to
+  memory, and extracts to memory (a load folded into an arithmetic instruction counts as ``alu``);
+- ``move``: unmasked moves from a vector register to another (renamed away on recent x86 cores);
 - ``mask``: AVX-512 mask-register instructions (``k...``);
 - ``scalar``: the rest (addresses, loop counters, branches).
 
 ``lanes`` is the float32 lanes of the loop's widest vector register (16 in a ``zmm``, 8 in a
-``ymm``). One pass through the raster kernels' pixel loops composites one vector of pixels: no
-unrolling, as read in their assembly for both targets (2026-11-30). On AMD Zen 4 a 512-bit
-instruction holds a 256-bit unit for two cycles, so ``alu`` a pixel, ``zmm`` instructions counted
-twice, gives the AVX2 / AVX-512 speed ratio of an arithmetic-bound loop: the forward loop's
-measured ratio fits it, the backward's does not (docs/benchmarks-history.md, 2026-11-30).
+``ymm``), and ``pixels`` the pixels one pass through the loop composites: ``lanes`` times the
+floors in the pass (one exp per vector of pixels; more when LLVM unrolled the loop).
+
+A model, not measured here: if a 512-bit instruction holds a 256-bit unit for two cycles (as is
+reported of AMD Zen 4), ``alu`` a pixel, ``alu_zmm`` counted twice, predicts the AVX2 / AVX-512
+speed ratio of a loop bound by arithmetic (docs/benchmarks-history.md, 2026-11-30: the forward
+pixel loop's measured ratio fits it, the backward's does not).
 """
 
 from __future__ import annotations
@@ -29,10 +33,17 @@ from __future__ import annotations
 import re
 
 EXP_MARK = "vcvttps2dq"  # exp_clamped's 2^n, in every loop that evaluates a Gaussian on pixels
+FLOOR = ("vroundps", "vrndscaleps")  # exp_clamped's n = floor(x log2 e + 1/2): one per exp
 _LABEL = re.compile(r"^(\.LBB\d+_\d+):")
 _JUMP = re.compile(r"^\s+j\w+\s+(\.LBB\d+_\d+)\s*$")
 _OPERANDS = re.compile(r",\s*(?![^()]*\))")  # commas outside parentheses
 KINDS = ("alu", "load", "store", "move", "mask", "scalar")
+# opcodes that move data between memory and vector registers when an operand is in memory
+_MEMORY_MOVES = ("vmov", "vbroadcast", "vpbroadcast", "vmaskmov", "vpmaskmov", "vgather", "vpgather",
+                 "vscatter", "vpscatter", "vpextr", "vextract")  # fmt: skip
+_REGISTER_MOVES = ("vmovaps", "vmovups", "vmovapd", "vmovupd", "vmovdqa", "vmovdqa32", "vmovdqa64", "vmovdqu",
+                   "vmovdqu8", "vmovdqu16", "vmovdqu32", "vmovdqu64")  # fmt: skip
+_VECTOR = re.compile(r"%[xyz]mm\d+")
 
 
 def instructions(lines: list[str]) -> list[str]:
@@ -46,24 +57,27 @@ def instructions(lines: list[str]) -> list[str]:
 
 
 def kind(instruction: str) -> str:
-    """Which of ``KINDS`` an AT&T-syntax x86-64 instruction is."""
+    """Which of ``KINDS`` an AT&T-syntax x86-64 instruction (sources first, destination last) is."""
     op, *rest = instruction.split(None, 1)
     args = rest[0] if rest else ""
     if op.startswith("k"):
         return "mask"
-    if "mm" not in args:
+    if not _VECTOR.search(args):
         return "scalar"
-    if op.startswith(("vmov", "vbroadcast")) and "{" not in args:  # a masked move selects: alu
-        operands = _OPERANDS.split(args)
+    operands = _OPERANDS.split(args)
+    if op.startswith(_MEMORY_MOVES):
         if "(" in operands[-1]:
             return "store"
-        return "load" if "(" in operands[0] else "move"
+        if not op.startswith(("vpextr", "vextract")) and any("(" in o for o in operands[:-1]):
+            return "load"
+    if op in _REGISTER_MOVES and "{" not in args and all(_VECTOR.fullmatch(o.strip()) for o in operands):
+        return "move"
     return "alu"
 
 
 def innermost_loops(asm: str) -> list[list[str]]:
-    """The instruction lines of each innermost loop: from a label to the first jump back to it,
-    holding no other such loop."""
+    """The instruction lines of each innermost loop of one module's assembly (LLVM numbers its
+    labels per module): from a label to the first jump back to it, holding no other such loop."""
     lines = asm.splitlines()
     where: dict[str, int] = {}
     spans: dict[str, tuple[int, int]] = {}
@@ -82,20 +96,30 @@ def innermost_loops(asm: str) -> list[list[str]]:
 
 
 def census(body: list[str]) -> dict[str, int]:
-    """``KINDS`` counts of a loop body, its ``instructions`` and ``lanes`` (float32 per vector of
-    its widest register)."""
+    """``KINDS`` counts of a loop body, ``alu_zmm``, its ``instructions``, ``lanes`` and
+    ``pixels`` a pass (see the module docstring)."""
     counts = dict.fromkeys(KINDS, 0)
+    alu_zmm = 0
     for ins in body:
-        counts[kind(ins)] += 1
+        k = kind(ins)
+        counts[k] += 1
+        alu_zmm += k == "alu" and "%zmm" in ins
     text = " ".join(body)
     lanes = 16 if "%zmm" in text else 8 if "%ymm" in text else 4
-    return {**counts, "instructions": len(body), "lanes": lanes}
+    exps = sum(ins.startswith(FLOOR) for ins in body)
+    return {**counts, "alu_zmm": alu_zmm, "instructions": len(body), "lanes": lanes, "pixels": lanes * max(exps, 1)}
 
 
-def pixel_loop(asm: str) -> dict[str, int] | None:
-    """``census`` of the RGB compositing loop of a raster kernel's assembly (see the module
-    docstring); None when no innermost loop evaluates exp."""
-    loops = [body for body in innermost_loops(asm) if any(ins.startswith(EXP_MARK) for ins in body)]
+def _evaluates_exp(body: list[str]) -> bool:
+    return any(i.startswith(FLOOR) for i in body) and any(i.startswith(EXP_MARK) for i in body)
+
+
+def pixel_loop(*modules: str) -> dict[str, int] | None:
+    """``census`` of the RGB compositing loop in the assembly of one or more modules (a kernel's
+    signatures; see the module docstring; of equal candidates, the shortest); None when no
+    innermost loop evaluates exp."""
+    loops = [body for asm in modules for body in innermost_loops(asm) if _evaluates_exp(body)]
     if not loops:
         return None
-    return max((census(body) for body in loops), key=lambda c: (c["lanes"], c["store"], c["alu"]))
+    return max((census(body) for body in loops),
+               key=lambda c: (c["lanes"], c["store"] / c["pixels"], c["alu"], -c["instructions"]))

@@ -164,9 +164,10 @@ def kernel_registers() -> dict | None:
         return None
     counts: dict = {"zmm": 0, "ymm": 0, "xmm": 0, "vmaskmov": 0, "pixel_loops": {}}
     for name, key in (("render_forward", "forward"), ("render_backward", "backward")):
-        asm = "".join(getattr(cpu_kernels, name).inspect_asm().values())
-        for reg in ("zmm", "ymm", "xmm"):
-            counts[reg] += len(re.findall(rf"%{reg}\d+", asm))
-        counts["vmaskmov"] += len(re.findall(r"\bvmaskmovp[sd]\b", asm))
-        counts["pixel_loops"][key] = pixel_loop(asm)
+        modules = list(getattr(cpu_kernels, name).inspect_asm().values())  # one per signature
+        for asm in modules:
+            for reg in ("zmm", "ymm", "xmm"):
+                counts[reg] += len(re.findall(rf"%{reg}\d+", asm))
+            counts["vmaskmov"] += len(re.findall(r"\bvmaskmovp[sd]\b", asm))
+        counts["pixel_loops"][key] = pixel_loop(*modules)
     return counts

@@ -94,9 +94,10 @@ def pixel_loop_line(pass_name: str, c: dict | None) -> str:
     """One line of ``asm_census.pixel_loop``'s census of a pass's RGB pixel loop."""
     if c is None:
         return f"{pass_name} pixel loop: not found in the assembly"
-    return (f"{pass_name} pixel loop, one pass = {c['lanes']} pixels: {c['alu']} vector ALU instructions "
-            f"({c['alu'] / c['lanes']:.2f} a pixel), {c['load']} loads, {c['store']} stores, {c['move']} register "
-            f"moves, {c['mask']} mask, {c['scalar']} scalar; {c['instructions']} in all")
+    return (f"{pass_name} pixel loop, one pass = {c['pixels']} pixels ({c['lanes']}-lane vectors): {c['alu']} vector "
+            f"ALU instructions ({c['alu'] / c['pixels']:.2f} a pixel; {c['alu_zmm']} on zmm), {c['load']} loads, "
+            f"{c['store']} stores, {c['move']} register moves, {c['mask']} mask, {c['scalar']} scalar; "
+            f"{c['instructions']} in all")
 
 
 def format_render_table(result: dict[str, Any]) -> str:
